@@ -1,0 +1,7 @@
+"""icprl_lightning: in-context preference-based reinforcement learning with PyTorch Lightning."""
+
+from icprl_lightning.data.contexts import RewardContext, StepPreferenceContext
+from icprl_lightning.deploy import Agent, load_agent
+
+__version__ = "0.1.0"
+__all__ = ["Agent", "RewardContext", "StepPreferenceContext", "load_agent"]

@@ -1,0 +1,35 @@
+"""In-context rollouts on held-out tasks at validation time (DESIGN.md, "Evaluation and logging").
+
+For every context quality the DataModule offers (``evaluation_suites``), the module is deployed through
+the public ``Agent`` API on the held-out tasks' contexts and the callback logs, under
+``val/<env>/<quality>/``: ``return`` and ``return_sem`` (mean ± standard error over held-out tasks),
+``normalized_return``, ``success`` (where the env reports it), and the behavior policy's and optimal
+policy's returns beside them. The sanity check is skipped.
+"""
+
+from __future__ import annotations
+
+import lightning as L
+
+from icprl_lightning.evaluation import rollout_in_context, summarize
+
+
+class InContextRolloutCallback(L.Callback):
+    def __init__(self, every_n_epochs: int = 1, greedy: bool = False, seed: int = 0) -> None:
+        self.every_n_epochs = every_n_epochs
+        self.greedy = greedy
+        self.seed = seed
+        self.last_results: dict[str, dict[str, float]] = {}
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.sanity_checking:
+            return
+        if trainer.state.fn == "fit" and (trainer.current_epoch + 1) % self.every_n_epochs != 0:
+            return
+        agent = pl_module.make_agent(greedy=self.greedy, seed=self.seed)
+        self.last_results = {}
+        for suite in trainer.datamodule.evaluation_suites():
+            result = summarize(suite, rollout_in_context(agent, suite, seed=self.seed))
+            prefix = f"val/{suite.env_name}/{suite.quality}"
+            self.last_results[prefix] = result
+            pl_module.log_dict({f"{prefix}/{k}": float(v) for k, v in result.items()}, on_epoch=True)

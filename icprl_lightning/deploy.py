@@ -1,0 +1,101 @@
+"""The public deployment API (DESIGN.md, "Deployment: the public contract").
+
+    from icprl_lightning import load_agent
+    agent = load_agent("run/checkpoints/last.ckpt")   # any method's checkpoint
+    agent.reset(context)                              # typed, batched context for B tasks
+    action = agent.act(obs)                           # obs [B, S] -> [B] (discrete) | [B, A]
+
+``reset`` encodes the context once into a KV cache; each ``act`` runs only the query token against it
+(paper, "DP²T Deployment" / "ICPO Deployment": a_h ~ T_θ(· | s_h, D) with D fixed). Discrete actions
+are sampled from T_θ by default (``greedy=True`` takes the argmax); continuous actions are the policy
+mean. Wrong shapes or dtypes raise ``ValueError`` naming the expected shape.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from icprl_lightning.data.contexts import CONTEXT_TYPES
+from icprl_lightning.models.policy import InContextPolicy
+from icprl_lightning.models.transformer import KVCache
+
+
+class Agent:
+    """A deployed in-context policy for B tasks at once (see the module docstring)."""
+
+    def __init__(self, policy: InContextPolicy, greedy: bool = False, use_cache: bool = True,
+                 seed: int | None = None) -> None:
+        self.policy = policy
+        self.greedy = greedy
+        self.use_cache = use_cache
+        self.generator: torch.Generator | None = None
+        if seed is not None:
+            self.generator = torch.Generator(device=self.device).manual_seed(seed)
+        self.context = None
+        self.cache: KVCache | None = None
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.policy.parameters()).device
+
+    @property
+    def context_type(self) -> type:
+        return CONTEXT_TYPES[self.policy.context_kind]
+
+    @torch.no_grad()
+    def reset(self, context) -> None:
+        """Condition on a new batch of contexts; encodes them once."""
+        if not isinstance(context, self.context_type):
+            raise ValueError(f"this agent takes a {self.context_type.__name__}, got {type(context).__name__}")
+        context.validate(self.policy.state_dim, self.policy.action_spec)
+        length, limit = context.states.shape[1], self.policy.transformer.max_context
+        if length > limit:
+            raise ValueError(f"context holds {length} steps; this model was trained for at most {limit}")
+        self.context = context.to(self.device)
+        self.cache = self.policy.encode(self.context) if self.use_cache else None
+
+    @torch.no_grad()
+    def act(self, obs: Tensor) -> Tensor:
+        """obs [B, S] float -> actions [B] int64 (discrete) or [B, A] float (continuous)."""
+        if self.context is None:
+            raise RuntimeError("call reset(context) before act(obs)")
+        b, s = self.context.batch_size, self.policy.state_dim
+        if not isinstance(obs, Tensor) or obs.shape != (b, s) or not obs.is_floating_point():
+            got = f"{list(obs.shape)} {obs.dtype}" if isinstance(obs, Tensor) else type(obs).__name__
+            raise ValueError(f"obs must be a float tensor of shape [B={b}, S={s}], got {got}")
+        query = obs.to(self.device)[:, None, :]
+        if self.use_cache:
+            out = self.policy.query(self.cache, query)
+        else:
+            visible = torch.tensor([self.context.states.shape[1]], device=self.device)
+            out = self.policy(self.context, query, visible)
+        out = out[:, 0]
+        if not self.policy.action_spec.discrete:
+            return out
+        if self.greedy:
+            return out.argmax(-1)
+        return torch.multinomial(out.softmax(-1), 1, generator=self.generator).squeeze(-1)
+
+
+def load_agent(checkpoint: str | Path, greedy: bool = False, use_cache: bool = True, seed: int | None = None,
+               map_location: str | torch.device = "cpu"):
+    """Load any icprl_lightning method's checkpoint as a deployable agent."""
+    path = Path(checkpoint)
+    if not path.is_file():
+        raise FileNotFoundError(f"No checkpoint at {path}")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as e:  # torch raises many types for a damaged file
+        raise ValueError(f"{path} is not a readable checkpoint ({type(e).__name__}: {e})") from None
+    class_path = ckpt.get("icprl_class_path") if isinstance(ckpt, dict) else None
+    if class_path is None:
+        raise ValueError(f"{path} is not an icprl_lightning checkpoint (no 'icprl_class_path' entry)")
+    module_name, _, cls_name = class_path.rpartition(".")
+    cls = getattr(importlib.import_module(module_name), cls_name)
+    module = cls.load_from_checkpoint(path, map_location=map_location, weights_only=False)
+    module.eval()
+    return module.make_agent(greedy=greedy, use_cache=use_cache, seed=seed)

@@ -1,0 +1,90 @@
+"""In-context evaluation on held-out tasks, as a plain function the rollout callback and scripts call.
+
+The paper's performance metric (section 6): the latent cumulative reward of an episode in an unseen
+task, with the agent conditioned on a fixed offline context from that task (no parameter updates, no
+reward observed). Returns are averaged per task, then summarized as mean ± standard error over tasks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+
+
+class VectorEnvLike(Protocol):
+    num_envs: int
+
+    def reset(self, *, seed: int | None = None) -> tuple[np.ndarray, dict]: ...
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]: ...
+
+
+class AgentLike(Protocol):
+    def reset(self, context: Any) -> None: ...
+
+    def act(self, obs: torch.Tensor) -> torch.Tensor: ...
+
+
+@dataclass
+class EvalSuite:
+    """B held-out episodes with their contexts: one context quality of one task family."""
+
+    env_name: str
+    quality: str
+    context: Any                               # a typed context with batch size B
+    make_env: Callable[[], VectorEnvLike]      # B episodes, aligned with the contexts
+    task_index: np.ndarray                     # [B] which held-out task each episode belongs to
+    horizon: int
+    reference: dict[str, float] = field(default_factory=dict)  # e.g. behavior_return, optimal_return
+    normalize: Callable[[np.ndarray], np.ndarray] | None = None
+
+
+def mean_sem(values: np.ndarray) -> tuple[float, float]:
+    values = np.asarray(values, dtype=np.float64)
+    sem = values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else float("nan")
+    return float(values.mean()), float(sem)
+
+
+def per_task_mean(values: np.ndarray, task_index: np.ndarray) -> np.ndarray:
+    tasks, inverse = np.unique(task_index, return_inverse=True)
+    return np.bincount(inverse, weights=values) / np.bincount(inverse)
+
+
+@torch.no_grad()
+def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0) -> dict[str, np.ndarray]:
+    """Run one episode per context; returns per-episode ``return`` (and ``success`` when the env reports it)."""
+    env = suite.make_env()
+    obs, _ = env.reset(seed=seed)
+    agent.reset(suite.context)
+    total = np.zeros(env.num_envs)
+    success = np.zeros(env.num_envs, dtype=bool)
+    reports_success = False
+    for _ in range(suite.horizon):
+        actions = agent.act(torch.as_tensor(obs, dtype=torch.float32))
+        obs, reward, terminated, truncated, info = env.step(actions.cpu().numpy())
+        total += reward
+        if "success" in info:
+            reports_success = True
+            success |= np.asarray(info["success"], dtype=bool)
+        if np.all(terminated | truncated):
+            break
+    out = {"return": total}
+    if reports_success:
+        out["success"] = success.astype(np.float64)
+    return out
+
+
+def summarize(suite: EvalSuite, episodes: dict[str, np.ndarray]) -> dict[str, float]:
+    """Mean ± sem over held-out tasks of return (normalized too) and success, plus the references."""
+    out: dict[str, float] = {}
+    for name, values in episodes.items():
+        out[name], out[f"{name}_sem"] = mean_sem(per_task_mean(values, suite.task_index))
+    if suite.normalize is not None:
+        normalized = suite.normalize(episodes["return"])
+        out["normalized_return"], out["normalized_return_sem"] = mean_sem(per_task_mean(normalized, suite.task_index))
+    out.update(suite.reference)
+    return out

@@ -1,0 +1,66 @@
+"""What every in-context method shares: the policy network T_θ(a | s, D), the optimizer, deployment.
+
+A method subclass defines ``loss(batch) -> (loss, metrics)`` — its training objective from the paper —
+and inherits logging, Adam, checkpoint metadata for ``load_agent`` and ``make_agent``.
+The environment's sizes (``state_dim``, ``action_dim``, ``discrete``, ``max_context``) are linked from
+the DataModule by the CLI, so a config names them once.
+"""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+from torch import Tensor
+
+from icprl_lightning.data.contexts import ActionSpec, context_from_batch
+from icprl_lightning.models.policy import InContextPolicy
+
+
+class InContextModule(L.LightningModule):
+    """Base LightningModule of DPT, DP²T and ICPO (see the module docstring)."""
+
+    def __init__(self, context_kind: str, state_dim: int, action_dim: int, discrete: bool, max_context: int,
+                 n_layer: int = 3, n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
+                 weight_decay: float = 0.0) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.context_kind = context_kind
+        self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
+        self.policy = InContextPolicy(context_kind, state_dim, self.action_spec, n_layer, n_embd, n_head,
+                                      max_context, dropout)
+
+    def forward(self, context, query_states: Tensor, visible: Tensor) -> Tensor:
+        return self.policy(context, query_states, visible)
+
+    def context(self, batch: dict[str, Tensor], prefix: str = ""):
+        return context_from_batch(self.context_kind, batch, prefix)
+
+    @staticmethod
+    def prefix_visible(length: int, device: torch.device) -> Tensor:
+        """Query t of a length-T sequence sees the first t + 1 context tokens: every context size at once."""
+        return torch.arange(1, length + 1, device=device)
+
+    def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
+        raise NotImplementedError
+
+    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
+        loss, metrics = self.loss(batch)
+        self.log("train/loss", loss, prog_bar=True)
+        self.log_dict({f"train/{k}": v for k, v in metrics.items()})
+        return loss
+
+    def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        loss, metrics = self.loss(batch)
+        self.log("val/loss", loss, prog_bar=True)
+        self.log_dict({f"val/{k}": v for k, v in metrics.items()})
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        return torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint["icprl_class_path"] = f"{type(self).__module__}.{type(self).__qualname__}"
+
+    def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None):
+        from icprl_lightning.deploy import Agent
+
+        return Agent(self.policy, greedy=greedy, use_cache=use_cache, seed=seed)

@@ -1,0 +1,51 @@
+"""Supervised in-context pretraining: DPT and DP²T (paper eq. (1) and section 5).
+
+Both maximize log T_θ(a* | s_query, D) over optimal-action labels of query states. They differ only in
+the context D: DPT sees reward-annotated transitions (s, a, r, s') — the oracle baseline with full
+reward supervision — while DP²T sees the preference context (I-PRL step comparisons). Each training
+sequence scores its H query states against context prefixes of every size 1..H at once.
+"""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+from icprl_lightning.methods.base import InContextModule
+from icprl_lightning.methods.losses import supervised_action_loss
+
+
+class SupervisedPretrainingModule(InContextModule):
+    def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
+        if "optimal_actions" not in batch:
+            raise KeyError(f"{type(self).__name__} trains on optimal-action labels: set "
+                           "data.init_args.query_labels: true")
+        context = self.context(batch)
+        queries = batch["query_states"]
+        outputs = self.policy(context, queries, self.prefix_visible(queries.shape[1], queries.device))
+        loss = supervised_action_loss(outputs, batch["optimal_actions"], self.action_spec.discrete)
+        metrics = {}
+        if self.action_spec.discrete:
+            metrics["action_accuracy"] = (outputs.argmax(-1) == batch["optimal_actions"]).float().mean()
+        return loss, metrics
+
+
+class DPTModule(SupervisedPretrainingModule):
+    """DPT: reward context + optimal-action labels (the oracle baseline)."""
+
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, n_layer: int = 3,
+                 n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
+                 weight_decay: float = 0.0) -> None:
+        super().__init__("reward", state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
+                         dropout, lr, weight_decay)
+
+
+class DP2TModule(SupervisedPretrainingModule):
+    """DP²T: preference context + optimal-action labels (the paper's supervised diagnostic)."""
+
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
+                 context_kind: str = "step_preference", n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
+                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0) -> None:
+        if context_kind == "reward":
+            raise ValueError("DP2T conditions on preferences; a reward context makes it DPT (DPTModule)")
+        super().__init__(context_kind, state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
+                         dropout, lr, weight_decay)

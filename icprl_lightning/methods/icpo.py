@@ -1,0 +1,64 @@
+"""In-Context Preference Optimization (ICPO), paper section 5.2.
+
+Discrete actions (final I-PRL objective, uniform reference policy):
+    max_θ Σ log σ(β (log T_θ(a⁺ | s, D) − λ log T_θ(a⁻ | s, D)))
+Continuous actions (appendix "ICPO for Continuous Control"): the Gaussian-mean form, see
+``losses.icpo_continuous_loss``.
+
+No optimal-action labels, no rewards: only the comparisons. Where the scored comparisons come from
+(``pair_source``):
+
+* ``"other_trajectory"`` (default): comparisons of another trajectory of the same task. Query t sees
+  the first t + 1 context comparisons. The comparison being scored is never in the context, so the
+  model must infer the task from the context rather than copy a label it can see.
+* ``"context"``: the paper's literal form — the comparisons of D itself, each scored with the whole D
+  in view (T_θ(a | s_h, D) with D ∋ (s_h, a_h, a'_h, y_h)).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from icprl_lightning.methods.base import InContextModule
+from icprl_lightning.methods.losses import icpo_continuous_loss, icpo_loss
+from icprl_lightning.models.tokenizers import preferred_first
+
+PAIR_SOURCES = ("other_trajectory", "context")
+
+
+class ICPOModule(InContextModule):
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, beta: float = 1.0,
+                 lam: float = 0.5, pair_source: str = "other_trajectory", lambda_on_preferred: bool = False,
+                 squared_distance: bool = False, n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
+                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0) -> None:
+        if pair_source not in PAIR_SOURCES:
+            raise ValueError(f"pair_source must be one of {PAIR_SOURCES}, got {pair_source!r}")
+        super().__init__("step_preference", state_dim, action_dim, discrete, max_context, n_layer, n_embd,
+                         n_head, dropout, lr, weight_decay)
+
+    def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
+        hp = self.hparams
+        context = self.context(batch)
+        t = context.states.shape[1]
+        if hp.pair_source == "other_trajectory":
+            if "pair_states" not in batch:
+                raise KeyError("ICPO with pair_source=other_trajectory needs data.init_args.pairs: true")
+            pairs = self.context(batch, prefix="pair_")
+            visible = self.prefix_visible(t, context.states.device)
+        else:
+            pairs = context
+            visible = torch.full((t,), t, device=context.states.device)
+        outputs = self.policy(context, pairs.states, visible)
+        plus, minus = preferred_first(pairs)
+        if self.action_spec.discrete:
+            logp = outputs.log_softmax(-1)
+            lp_plus = logp.gather(-1, plus[..., None]).squeeze(-1)
+            lp_minus = logp.gather(-1, minus[..., None]).squeeze(-1)
+            loss = icpo_loss(lp_plus, lp_minus, hp.beta, hp.lam)
+            agree = (lp_plus > lp_minus).float().mean()
+        else:
+            loss = icpo_continuous_loss(outputs, plus, minus, hp.beta, hp.lam, hp.lambda_on_preferred,
+                                        hp.squared_distance)
+            agree = ((outputs - plus).norm(dim=-1) < (outputs - minus).norm(dim=-1)).float().mean()
+        return loss, {"pair_agreement": agree}

@@ -1,0 +1,40 @@
+"""Pure loss functions of every method, each tested against hand-computed values.
+
+* ``supervised_action_loss`` — DPT / DP²T, paper eq. (1): −log T_θ(a* | s_query, D) for discrete
+  actions; for continuous actions the Gaussian-mean policy N(a; T_θ(s, D), γI) makes it the squared
+  error ‖a* − T_θ(s, D)‖² (up to constants).
+* ``icpo_loss`` — ICPO, paper eq. (final I-PRL objective):
+  −log σ(β (log T_θ(a⁺ | s, D) − λ log T_θ(a⁻ | s, D))).
+* ``icpo_continuous_loss`` — ICPO for continuous control (appendix "ICPO for Continuous Control"):
+  −log σ(β (‖a⁻ − μ‖ − ‖a⁺ − μ‖)) with μ = T_θ(s, D); the derivation's squared norms via
+  ``squared=True``; λ scales the non-preferred distance, or the preferred one with
+  ``lambda_on_preferred=True`` (the paper's Meta-World ablation).
+"""
+
+from __future__ import annotations
+
+import torch.nn.functional as F
+from torch import Tensor
+
+
+def supervised_action_loss(outputs: Tensor, optimal_actions: Tensor, discrete: bool) -> Tensor:
+    """outputs (..., A) logits or means; optimal_actions (...) indices or (..., A) vectors -> scalar."""
+    if discrete:
+        return F.cross_entropy(outputs.reshape(-1, outputs.shape[-1]), optimal_actions.reshape(-1).long())
+    return (outputs - optimal_actions).pow(2).sum(-1).mean()
+
+
+def icpo_loss(logp_preferred: Tensor, logp_rejected: Tensor, beta: float, lam: float) -> Tensor:
+    """Mean of −log σ(β (log T(a⁺) − λ log T(a⁻))) over all comparisons."""
+    return -F.logsigmoid(beta * (logp_preferred - lam * logp_rejected)).mean()
+
+
+def icpo_continuous_loss(mean: Tensor, preferred: Tensor, rejected: Tensor, beta: float, lam: float = 1.0,
+                         lambda_on_preferred: bool = False, squared: bool = False) -> Tensor:
+    """mean, preferred, rejected (..., A) -> mean of −log σ(β (λ⁻ d(a⁻, μ) − λ⁺ d(a⁺, μ)))."""
+    d_plus = (preferred - mean).pow(2).sum(-1)
+    d_minus = (rejected - mean).pow(2).sum(-1)
+    if not squared:
+        d_plus, d_minus = d_plus.clamp_min(1e-12).sqrt(), d_minus.clamp_min(1e-12).sqrt()
+    margin = d_minus - lam * d_plus if lambda_on_preferred else lam * d_minus - d_plus
+    return -F.logsigmoid(beta * margin).mean()

@@ -1,0 +1,58 @@
+"""Evaluation metrics as torchmetrics.
+
+Weak regret (paper, appendix "Dueling Bandit Experiments"): for a duel (a, a') in problem τ,
+
+    reg(a, a') = min(R*_τ − R_τ(a), R*_τ − R_τ(a')),
+
+where R*_τ = max_a R_τ(a) is the optimal expected reward. It is zero as soon as either arm of the duel
+is optimal. ``WeakRegret`` averages it over every duel it sees.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+from torchmetrics import Metric
+
+
+def weak_regret(expected_rewards: Tensor, first: Tensor, second: Tensor) -> Tensor:
+    """reg(a, a') per problem: ``expected_rewards [B, A]`` float, ``first``/``second [B]`` long -> ``[B]``."""
+    if expected_rewards.dim() != 2 or not expected_rewards.is_floating_point():
+        raise ValueError(f"expected_rewards must be a float tensor of shape [B, A], "
+                         f"got {expected_rewards.dtype} {list(expected_rewards.shape)}")
+    batch, n_arms = expected_rewards.shape
+    for name, arms in (("first", first), ("second", second)):
+        if arms.shape != (batch,) or arms.is_floating_point():
+            raise ValueError(f"{name} must be an integer tensor of shape [B={batch}], "
+                             f"got {arms.dtype} {list(arms.shape)}")
+        if arms.numel() and (arms.min() < 0 or arms.max() >= n_arms):
+            raise ValueError(f"{name} holds arm indices outside [0, {n_arms})")
+    best = expected_rewards.max(dim=-1).values
+    reward_first = expected_rewards.gather(-1, first.long().unsqueeze(-1)).squeeze(-1)
+    reward_second = expected_rewards.gather(-1, second.long().unsqueeze(-1)).squeeze(-1)
+    return torch.minimum(best - reward_first, best - reward_second)
+
+
+class WeakRegret(Metric):
+    """Mean weak regret over all duels passed to ``update``."""
+
+    is_differentiable = False
+    higher_is_better = False
+    full_state_update = False
+
+    total: Tensor
+    count: Tensor
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.add_state("total", default=torch.tensor(0.0, dtype=torch.float64), dist_reduce_fx="sum")
+        self.add_state("count", default=torch.tensor(0, dtype=torch.long), dist_reduce_fx="sum")
+
+    def update(self, expected_rewards: Tensor, first: Tensor, second: Tensor) -> None:
+        regret = weak_regret(expected_rewards, first, second)
+        self.total += regret.double().sum()
+        self.count += regret.numel()
+
+    def compute(self) -> Tensor:
+        # Accumulated in float64 so long evaluations do not drift; reported as float32 like other metrics.
+        return (self.total / self.count).float()

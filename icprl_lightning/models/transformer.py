@@ -1,0 +1,143 @@
+"""A GPT-2-style pre-LN causal transformer over [context tokens ; query tokens], with a KV cache.
+
+Paper, appendix "Implementation Details": all models use the GPT-2 architecture with causal masking
+and learned position embeddings. The sequence is the context (one token per transition) followed by
+query tokens. Context tokens attend causally to earlier context tokens. Query q attends to the first
+``visible[q]`` context tokens and to itself only, and takes position ``visible[q]``. One training
+sequence therefore scores its queries against many context sizes at once, and at deployment a query
+that sees the whole context is exactly the last token of the sequence:
+
+* ``forward(context, queries, visible)`` — training: all tokens in one pass, mask as above;
+* ``encode(context)`` — deployment: run the context once and keep every layer's keys and values;
+* ``query(cache, queries)`` — each act(): run only the new query tokens against the cache.
+
+``query(encode(c), q)`` equals ``forward(c, q, visible=[T] * Q)`` (tested).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+
+@dataclass
+class KVCache:
+    keys: list[Tensor]    # per layer (B, nh, T, hs)
+    values: list[Tensor]  # per layer (B, nh, T, hs)
+
+    @property
+    def length(self) -> int:
+        return self.keys[0].shape[2]
+
+
+class SelfAttention(nn.Module):
+    def __init__(self, n_embd: int, n_head: int, dropout: float) -> None:
+        super().__init__()
+        assert n_embd % n_head == 0, f"n_embd {n_embd} must be divisible by n_head {n_head}"
+        self.n_head = n_head
+        self.qkv = nn.Linear(n_embd, 3 * n_embd)
+        self.proj = nn.Linear(n_embd, n_embd)
+        self.dropout = dropout
+        self.resid_drop = nn.Dropout(dropout)
+
+    def forward(self, x: Tensor, mask: Tensor, past: tuple[Tensor, Tensor] | None = None
+                ) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+        b, t, c = x.shape
+        q, k, v = self.qkv(x).split(c, dim=2)
+        q, k, v = (z.view(b, t, self.n_head, c // self.n_head).transpose(1, 2) for z in (q, k, v))  # (B, nh, t, hs)
+        if past is not None:
+            k, v = torch.cat([past[0], k], dim=2), torch.cat([past[1], v], dim=2)
+        y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask,
+                                           dropout_p=self.dropout if self.training else 0.0)
+        y = y.transpose(1, 2).contiguous().view(b, t, c)
+        return self.resid_drop(self.proj(y)), (k, v)
+
+
+class Block(nn.Module):
+    def __init__(self, n_embd: int, n_head: int, dropout: float) -> None:
+        super().__init__()
+        self.ln1 = nn.LayerNorm(n_embd)
+        self.attn = SelfAttention(n_embd, n_head, dropout)
+        self.ln2 = nn.LayerNorm(n_embd)
+        self.mlp = nn.Sequential(nn.Linear(n_embd, 4 * n_embd), nn.GELU(), nn.Linear(4 * n_embd, n_embd),
+                                 nn.Dropout(dropout))
+
+    def forward(self, x: Tensor, mask: Tensor, past: tuple[Tensor, Tensor] | None = None
+                ) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+        a, kv = self.attn(self.ln1(x), mask, past)
+        x = x + a
+        return x + self.mlp(self.ln2(x)), kv
+
+
+def query_mask(n_context: int, visible: Tensor) -> Tensor:
+    """Boolean mask (True = attend) of shape (T + Q, T + Q) for context T and queries seeing ``visible``."""
+    q = len(visible)
+    n = n_context + q
+    mask = torch.zeros(n, n, dtype=torch.bool, device=visible.device)
+    mask[:n_context, :n_context] = torch.ones(n_context, n_context, dtype=torch.bool, device=visible.device).tril()
+    cols = torch.arange(n_context, device=visible.device)
+    mask[n_context:, :n_context] = cols[None, :] < visible[:, None]
+    mask[n_context:, n_context:] = torch.eye(q, dtype=torch.bool, device=visible.device)
+    return mask
+
+
+class CausalTransformer(nn.Module):
+    """Pre-LN transformer on embedded tokens; ``max_context`` bounds the context length."""
+
+    def __init__(self, n_layer: int, n_embd: int, n_head: int, max_context: int, dropout: float = 0.0) -> None:
+        super().__init__()
+        self.max_context = max_context
+        self.pos = nn.Embedding(max_context + 1, n_embd)
+        self.drop = nn.Dropout(dropout)
+        self.blocks = nn.ModuleList(Block(n_embd, n_head, dropout) for _ in range(n_layer))
+        self.ln_f = nn.LayerNorm(n_embd)
+        self.apply(self._init)
+
+    @staticmethod
+    def _init(m: nn.Module) -> None:
+        if isinstance(m, nn.Linear):
+            nn.init.normal_(m.weight, std=0.02)
+            nn.init.zeros_(m.bias)
+        elif isinstance(m, nn.Embedding):
+            nn.init.normal_(m.weight, std=0.02)
+
+    def _check_length(self, t: int) -> None:
+        if t > self.max_context:
+            raise ValueError(f"context of {t} tokens is longer than this model's max_context {self.max_context}")
+
+    def forward(self, context: Tensor, queries: Tensor, visible: Tensor) -> Tensor:
+        """context (B, T, D), queries (B, Q, D), visible (Q,) in [0, T] -> query outputs (B, Q, D)."""
+        t = context.shape[1]
+        self._check_length(t)
+        pos = torch.cat([torch.arange(t, device=context.device), visible.to(context.device)])
+        x = self.drop(torch.cat([context, queries], dim=1) + self.pos(pos))
+        mask = query_mask(t, visible.to(context.device))
+        for block in self.blocks:
+            x, _ = block(x, mask)
+        return self.ln_f(x[:, t:])
+
+    def encode(self, context: Tensor) -> KVCache:
+        """Run the context (B, T, D) once; keep each layer's keys and values."""
+        t = context.shape[1]
+        self._check_length(t)
+        x = self.drop(context + self.pos(torch.arange(t, device=context.device)))
+        mask = torch.ones(t, t, dtype=torch.bool, device=context.device).tril()
+        keys, values = [], []
+        for block in self.blocks:
+            x, (k, v) = block(x, mask)
+            keys.append(k)
+            values.append(v)
+        return KVCache(keys, values)
+
+    def query(self, cache: KVCache, queries: Tensor) -> Tensor:
+        """Queries (B, Q, D) that each see the whole cached context and themselves -> (B, Q, D)."""
+        t, q = cache.length, queries.shape[1]
+        x = self.drop(queries + self.pos(torch.full((q,), t, device=queries.device)))
+        mask = torch.cat([torch.ones(q, t, dtype=torch.bool, device=queries.device),
+                          torch.eye(q, dtype=torch.bool, device=queries.device)], dim=1)
+        for block, k, v in zip(self.blocks, cache.keys, cache.values, strict=True):
+            x, _ = block(x, mask, past=(k, v))
+        return self.ln_f(x)

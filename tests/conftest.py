@@ -1,0 +1,39 @@
+"""Shared fixtures: W&B disabled, tiny DarkRoom datasets generated once per session."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+os.environ.setdefault("WANDB_MODE", "disabled")
+
+from icprl_lightning.data.darkroom_datamodule import DarkRoomDataModule  # noqa: E402
+
+TINY = dict(trajectories_per_task=6, val_trajectories_per_task=2, eval_contexts_per_task=1,
+            calibration_episodes=4, n_train_tasks=80, n_test_tasks=20, progress=False, batch_size=8)
+
+
+@pytest.fixture(scope="session")
+def tiny_kwargs() -> dict:
+    return dict(TINY)
+
+
+@pytest.fixture(scope="session")
+def data_root(tmp_path_factory) -> str:
+    return str(tmp_path_factory.mktemp("data"))
+
+
+@pytest.fixture(scope="session")
+def tiny_ipref(data_root) -> DarkRoomDataModule:
+    dm = DarkRoomDataModule(context_kind="step_preference", root_dir=data_root, pairs=True, query_labels=True,
+                            **TINY)
+    dm.prepare_data()
+    return dm
+
+
+@pytest.fixture(scope="session")
+def tiny_reward(data_root) -> DarkRoomDataModule:
+    dm = DarkRoomDataModule(context_kind="reward", root_dir=data_root, query_labels=True, **TINY)
+    dm.prepare_data()
+    return dm
