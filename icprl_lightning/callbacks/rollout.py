@@ -24,7 +24,9 @@ class InContextRolloutCallback(L.Callback):
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking:
             return
-        if trainer.state.fn == "fit" and (trainer.current_epoch + 1) % self.every_n_epochs != 0:
+        epoch = trainer.current_epoch + 1
+        last = trainer.max_epochs is not None and epoch >= trainer.max_epochs
+        if trainer.state.fn == "fit" and epoch % self.every_n_epochs != 0 and not last:
             return
         agent = pl_module.make_agent(greedy=self.greedy, seed=self.seed)
         self.last_results = {}

@@ -33,7 +33,8 @@ def transition(states: np.ndarray, actions: np.ndarray, size: int) -> np.ndarray
 
 def step_reward(next_states: np.ndarray, goals: np.ndarray) -> np.ndarray:
     """r(s, a) = 1 when the move lands on the goal."""
-    return np.all(next_states == goals, axis=-1).astype(np.float32)
+    # explicit columns: NumPy reductions over a length-2 axis are several times slower
+    return ((next_states[..., 0] == goals[..., 0]) & (next_states[..., 1] == goals[..., 1])).astype(np.float32)
 
 
 @dataclass(frozen=True)

@@ -9,10 +9,19 @@
   −log σ(β (‖a⁻ − μ‖ − ‖a⁺ − μ‖)) with μ = T_θ(s, D); the derivation's squared norms via
   ``squared=True``; λ scales the non-preferred distance, or the preferred one with
   ``lambda_on_preferred=True`` (the paper's Meta-World ablation).
+* ``trajectory_preference_loss`` — RewardGen, paper eq. (L_R^T):
+  −log σ(Σ_h R_ψ(s⁺_h, a⁺_h | D^T) − Σ_h R_ψ(s⁻_h, a⁻_h | D^T)), written for a labeled pair (ξ_a, ξ_b, y).
+* ``dit_value_loss`` — DIT's in-context Q̂ and V̂, paper eq. (dit-loss): (Q̂ − G)² + (V̂ − G)² on discounted
+  returns G (the paper's second term lacks its square; the regression is meant).
+* ``advantage_weighted_loss`` — DIT's policy, paper eq. (dit-optimization): −exp(Â/η) log T^R(a | s, D),
+  the weight clipped at ``max_weight`` (as in AWR/IQL: one large advantage must not dominate a batch).
 """
 
 from __future__ import annotations
 
+import math
+
+import torch
 import torch.nn.functional as F
 from torch import Tensor
 
@@ -38,3 +47,19 @@ def icpo_continuous_loss(mean: Tensor, preferred: Tensor, rejected: Tensor, beta
         d_plus, d_minus = d_plus.clamp_min(1e-12).sqrt(), d_minus.clamp_min(1e-12).sqrt()
     margin = d_minus - lam * d_plus if lambda_on_preferred else lam * d_minus - d_plus
     return -F.logsigmoid(beta * margin).mean()
+
+
+def trajectory_preference_loss(returns_a: Tensor, returns_b: Tensor, preferred: Tensor) -> Tensor:
+    """Mean Bradley–Terry NLL of labels y (1 = ξ_a won) given summed rewards R(ξ_a), R(ξ_b), all shaped (B,)."""
+    return F.binary_cross_entropy_with_logits(returns_a - returns_b, preferred.float())
+
+
+def dit_value_loss(q_values: Tensor, v_values: Tensor, returns: Tensor) -> Tensor:
+    """mean (Q̂ − G)² + mean (V̂ − G)² over all (trajectory, step) entries."""
+    return (q_values - returns).pow(2).mean() + (v_values - returns).pow(2).mean()
+
+
+def advantage_weighted_loss(log_likelihood: Tensor, advantages: Tensor, eta: float, max_weight: float) -> Tensor:
+    """−mean(min(exp(Â / η), max_weight) · log T(a | s, D)); the weights carry no gradient."""
+    weights = torch.exp((advantages.detach() / eta).clamp(max=math.log(max_weight)))
+    return -(weights * log_likelihood).mean()

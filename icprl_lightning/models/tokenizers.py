@@ -4,6 +4,11 @@
   first. This is the same information as (a, a', y) and makes the token invariant to which slot each
   action was proposed in.
 * Reward contexts (s, a, r, s') for DPT.
+* T-PRL pairs (ξ_a, ξ_b, y): one token per step h holding *both* trajectories' transitions, winner first,
+  each embedded by its own module, E⁺(s⁺_h, a⁺_h) + E⁻(s⁻_h, a⁻_h) (the paper's reward model embeds ξ⁺ and
+  ξ⁻ with two separate modules). Step-aligning the pair keeps the context H tokens long, so a query that
+  sees the first t tokens sees both trajectories up to step t, exactly like an I-PRL context prefix.
+* Reward trajectories (s, a, r) for DIT, with true rewards or RewardGen's estimates.
 
 Discrete actions enter as one-hot vectors, continuous ones as they are (``ActionSpec.encode``).
 """
@@ -13,7 +18,13 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from icprl_lightning.data.contexts import ActionSpec, RewardContext, StepPreferenceContext
+from icprl_lightning.data.contexts import (
+    ActionSpec,
+    RewardContext,
+    RewardTrajectoryContext,
+    StepPreferenceContext,
+    TrajectoryPreferenceContext,
+)
 
 
 def preferred_first(context: StepPreferenceContext) -> tuple[Tensor, Tensor]:
@@ -49,7 +60,43 @@ class RewardTokenizer(nn.Module):
         return self.embed(torch.cat(parts, dim=-1))  # (B, T, D)
 
 
+def preferred_trajectory_first(context: TrajectoryPreferenceContext) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """(s⁺, a⁺, s⁻, a⁻) from (ξ_a, ξ_b, y) with y = 1 when ξ_a won."""
+    won = context.preferred.reshape(-1, 1, 1) > 0.5  # (B, 1, 1)
+    won_a = won[..., 0] if context.actions_a.dim() == 2 else won
+    c = context
+    return (torch.where(won, c.states_a, c.states_b), torch.where(won_a, c.actions_a, c.actions_b),
+            torch.where(won, c.states_b, c.states_a), torch.where(won_a, c.actions_b, c.actions_a))
+
+
+class TrajectoryPreferenceTokenizer(nn.Module):
+    def __init__(self, state_dim: int, action_spec: ActionSpec, n_embd: int) -> None:
+        super().__init__()
+        self.action_spec = action_spec
+        self.embed_preferred = nn.Linear(state_dim + action_spec.size, n_embd)
+        self.embed_rejected = nn.Linear(state_dim + action_spec.size, n_embd)
+
+    def forward(self, context: TrajectoryPreferenceContext) -> Tensor:
+        s_plus, a_plus, s_minus, a_minus = preferred_trajectory_first(context)
+        enc = self.action_spec.encode
+        return (self.embed_preferred(torch.cat([s_plus, enc(a_plus)], dim=-1))
+                + self.embed_rejected(torch.cat([s_minus, enc(a_minus)], dim=-1)))  # (B, H, D)
+
+
+class RewardTrajectoryTokenizer(nn.Module):
+    def __init__(self, state_dim: int, action_spec: ActionSpec, n_embd: int) -> None:
+        super().__init__()
+        self.action_spec = action_spec
+        self.embed = nn.Linear(state_dim + action_spec.size + 1, n_embd)
+
+    def forward(self, context: RewardTrajectoryContext) -> Tensor:
+        parts = [context.states, self.action_spec.encode(context.actions), context.rewards[..., None]]
+        return self.embed(torch.cat(parts, dim=-1))  # (B, T, D)
+
+
 TOKENIZERS: dict[str, type[nn.Module]] = {
     "step_preference": StepPreferenceTokenizer,
     "reward": RewardTokenizer,
+    "trajectory_preference": TrajectoryPreferenceTokenizer,
+    "reward_trajectory": RewardTrajectoryTokenizer,
 }

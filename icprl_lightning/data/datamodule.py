@@ -1,0 +1,169 @@
+"""The shared LightningDataModule of every task family: generate once, store, memory-map, batch.
+
+A family's DataModule subclass says how to generate its dataset (``generator_config`` and
+``generate``), what its contexts look like (``context_kind``, ``state_dim``, ``action_spec``) and how its
+held-out tasks are evaluated (``evaluation_suites``). This base class owns the rest:
+
+* ``prepare_data()`` generates the dataset when it is missing (atomic write, see ``data/store.py``);
+  an existing one made with another config is an error that names the differing keys.
+* Batches are drawn a whole batch at a time from the memory-mapped arrays (one fancy index per field).
+* A training sample is one context (a trajectory of one task). With ``pairs=True`` it also carries the
+  comparisons of *another* trajectory of the same task (``pair_*`` fields): ICPO's default loss pairs,
+  which the model cannot copy from its context. With ``query_labels=True`` it carries query states and
+  their optimal-action labels (``query_states``, ``optimal_actions``) for DPT/DP²T.
+
+Trajectories are stored task-major: row ``task * trajectories_per_task + j``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from abc import abstractmethod
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
+
+from icprl_lightning.data.contexts import ActionSpec, context_fields
+from icprl_lightning.data.store import StoredDataset, load_dataset, write_dataset
+from icprl_lightning.evaluation import EvalSuite
+
+PAIR_FIELDS = context_fields("step_preference")
+LABEL_FIELDS = ("query_states", "optimal_actions")
+
+
+def to_tensor(x: np.ndarray) -> torch.Tensor:
+    """Stored compactly, served as the model wants: labels (uint8) as float, indices as int64."""
+    t = torch.from_numpy(np.ascontiguousarray(x))
+    if t.dtype == torch.uint8:
+        return t.float()
+    return t.long() if not t.is_floating_point() else t
+
+
+class ContextBatches(Dataset):
+    """Indexable by a list of row indices; returns a whole batch as a dict of tensors."""
+
+    def __init__(self, arrays: dict[str, np.ndarray], context_fields: tuple[str, ...], trajectories_per_task: int,
+                 pairs: bool, query_labels: bool) -> None:
+        self.arrays = arrays
+        self.fields = list(context_fields) + (list(LABEL_FIELDS) if query_labels else [])
+        self.per_task = trajectories_per_task
+        self.pairs = pairs
+        if pairs and trajectories_per_task < 2:
+            raise ValueError("pairs from another trajectory of the same task need trajectories_per_task >= 2")
+
+    def __len__(self) -> int:
+        return len(self.arrays["states"])
+
+    def __getitem__(self, index: list[int]) -> dict[str, torch.Tensor]:
+        idx = np.sort(np.asarray(index))  # sorted reads are kinder to memory maps
+        batch = {k: to_tensor(self.arrays[k][idx]) for k in self.fields}
+        if self.pairs:
+            j = idx % self.per_task
+            shift = torch.randint(1, self.per_task, (len(idx),)).numpy()
+            other = idx - j + (j + shift) % self.per_task
+            for k in PAIR_FIELDS:
+                batch[f"pair_{k}"] = to_tensor(self.arrays[k][other])
+        return batch
+
+
+class InContextDataModule(L.LightningDataModule):
+    """Base DataModule: see the module docstring. Subclasses define the family-specific parts."""
+
+    family_name: str = "family"
+
+    def __init__(self, data_dir: str | None = None, root_dir: str = "data", batch_size: int = 32,
+                 pairs: bool = False, query_labels: bool = False, overwrite: bool = False,
+                 verify_checksums: bool = True, progress: bool = True) -> None:
+        super().__init__()
+        self.data_dir = data_dir
+        self.root_dir = root_dir
+        self.batch_size = batch_size
+        self.pairs = pairs
+        self.query_labels = query_labels
+        self.overwrite = overwrite
+        self.verify_checksums = verify_checksums
+        self.progress = progress
+        self.dataset: StoredDataset | None = None
+
+    # ---- family-specific -------------------------------------------------------------------------
+    @property
+    @abstractmethod
+    def context_kind(self) -> str: ...
+
+    @property
+    @abstractmethod
+    def state_dim(self) -> int: ...
+
+    @property
+    @abstractmethod
+    def action_spec(self) -> ActionSpec: ...
+
+    @property
+    @abstractmethod
+    def context_length(self) -> int:
+        """Transitions per context (the model's ``max_context``)."""
+
+    @abstractmethod
+    def generator_config(self) -> dict[str, Any]:
+        """Everything that determines the dataset's bytes (compared against the manifest on load)."""
+
+    @abstractmethod
+    def generate(self) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
+        """Return ``(splits, info)``; splits need ``train`` and ``val`` with task-major trajectories."""
+
+    @abstractmethod
+    def evaluation_suites(self) -> list[EvalSuite]:
+        """The held-out-task evaluations the rollout callback runs (one per context quality)."""
+
+    @property
+    @abstractmethod
+    def trajectories_per_task(self) -> tuple[int, int]:
+        """Trajectories per task in the (train, val) splits."""
+
+    # ---- shared ------------------------------------------------------------------------------------
+    @property
+    def path(self) -> Path:
+        if self.data_dir is not None:
+            return Path(self.data_dir)
+        digest = hashlib.sha256(json.dumps(self.generator_config(), sort_keys=True).encode()).hexdigest()[:10]
+        return Path(self.root_dir) / f"{self.family_name}-{self.context_kind}-{digest}"
+
+    @property
+    def regenerate_hint(self) -> str:
+        return (f"delete {self.path} (or pass --data.init_args.overwrite true) and run "
+                f"`icprl generate --config <your config>`; fit also generates a missing dataset")
+
+    def prepare_data(self) -> None:
+        if self.path.exists() and not self.overwrite:
+            load_dataset(self.path, self.generator_config(), verify=False, regenerate_hint=self.regenerate_hint)
+            return
+        splits, info = self.generate()
+        write_dataset(self.path, splits, self.generator_config(), info=info, overwrite=True)
+        self.overwrite = False  # generated now; later calls (e.g. setup in another stage) reuse it
+
+    def load(self) -> StoredDataset:
+        if self.dataset is None:
+            self.dataset = load_dataset(self.path, self.generator_config(), verify=self.verify_checksums,
+                                        regenerate_hint=self.regenerate_hint)
+        return self.dataset
+
+    def setup(self, stage: str | None = None) -> None:
+        self.load()
+
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        per_task = self.trajectories_per_task[0 if split == "train" else 1]
+        data = ContextBatches(self.load()[split], context_fields(self.context_kind), per_task,
+                              self.pairs, self.query_labels)
+        base = RandomSampler(data) if shuffle else SequentialSampler(data)
+        return DataLoader(data, sampler=BatchSampler(base, self.batch_size, drop_last=shuffle), batch_size=None)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)

@@ -1,0 +1,151 @@
+"""On-disk datasets: one directory per dataset, one memory-mappable ``.npy`` per field, a manifest.
+
+Layout::
+
+    <path>/manifest.json            schema version, generator config, seed, sizes, statistics, checksums
+    <path>/<split>/<field>.npy      e.g. train/states.npy, eval_low/preferred.npy
+
+A dataset is written into a hidden temporary sibling directory and renamed into place only after every
+array and the manifest are on disk, so an interrupted generation leaves nothing that looks like a
+dataset. Loading checks the schema version, the generator config, and each file's size and SHA-256, and
+every failure says what is wrong and how to regenerate.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import uuid
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SCHEMA_VERSION = 1
+MANIFEST = "manifest.json"
+
+
+class DatasetError(RuntimeError):
+    """A dataset on disk is missing, corrupt, truncated or was made with another config."""
+
+
+class DatasetNotFoundError(DatasetError):
+    pass
+
+
+@dataclass
+class StoredDataset:
+    path: Path
+    manifest: dict[str, Any]
+    splits: dict[str, dict[str, np.ndarray]]
+
+    def __getitem__(self, split: str) -> dict[str, np.ndarray]:
+        if split not in self.splits:
+            raise KeyError(f"dataset {self.path} has no split {split!r}; it has {sorted(self.splits)}")
+        return self.splits[split]
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 22), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _jsonable(x: Any) -> Any:
+    """Configs go through JSON so that the manifest compares equal to a freshly built config."""
+    return json.loads(json.dumps(x, default=lambda o: o.item() if hasattr(o, "item") else str(o)))
+
+
+def write_dataset(path: str | Path, splits: Mapping[str, Mapping[str, np.ndarray]], config: Mapping[str, Any],
+                  info: Mapping[str, Any] | None = None, overwrite: bool = False) -> Path:
+    """Write ``splits`` atomically to ``path``; ``config`` is what generated it (compared on load)."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by an interrupted run
+        shutil.rmtree(stale, ignore_errors=True)
+    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    try:
+        files: dict[str, dict[str, Any]] = {}
+        sizes: dict[str, dict[str, list[int]]] = {}
+        for split, fields in splits.items():
+            (tmp / split).mkdir(parents=True)
+            sizes[split] = {}
+            for name, array in fields.items():
+                array = np.ascontiguousarray(array)
+                rel = f"{split}/{name}.npy"
+                np.save(tmp / rel, array)
+                files[rel] = {"sha256": _sha256(tmp / rel), "bytes": (tmp / rel).stat().st_size,
+                              "shape": list(array.shape), "dtype": str(array.dtype)}
+                sizes[split][name] = list(array.shape)
+        manifest = {"schema_version": SCHEMA_VERSION, "config": _jsonable(dict(config)),
+                    "info": _jsonable(dict(info or {})), "sizes": sizes, "files": files}
+        with open(tmp / MANIFEST, "w") as f:
+            json.dump(manifest, f, indent=2, sort_keys=True)
+            f.flush()
+            os.fsync(f.fileno())
+        if path.exists():
+            trash = path.parent / f".{path.name}.old-{uuid.uuid4().hex[:8]}"
+            os.rename(path, trash)
+            os.rename(tmp, path)
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            os.rename(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return path
+
+
+def _config_diff(found: Mapping[str, Any], expected: Mapping[str, Any]) -> list[str]:
+    keys = sorted(set(found) | set(expected))
+    return [f"{k}: on disk {found.get(k, '<missing>')!r}, requested {expected.get(k, '<missing>')!r}"
+            for k in keys if found.get(k, "<missing>") != expected.get(k, "<missing>")]
+
+
+def load_dataset(path: str | Path, expected_config: Mapping[str, Any] | None = None, verify: bool = True,
+                 regenerate_hint: str = "delete the directory and generate it again") -> StoredDataset:
+    """Open a dataset with memory-mapped arrays, after checking it is whole and made by this config."""
+    path = Path(path)
+    fix = f"To fix: {regenerate_hint}."
+    if not path.is_dir():
+        raise DatasetNotFoundError(f"No dataset at {path}. {fix}")
+    try:
+        manifest = json.loads((path / MANIFEST).read_text())
+    except FileNotFoundError:
+        raise DatasetError(f"Dataset {path} has no {MANIFEST}: it is incomplete or not a dataset. {fix}") from None
+    except json.JSONDecodeError as e:
+        raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt ({e}). {fix}") from None
+    version = manifest.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise DatasetError(f"Dataset {path} has schema version {version}, this code reads {SCHEMA_VERSION}. {fix}")
+    if expected_config is not None:
+        diff = _config_diff(manifest.get("config", {}), _jsonable(dict(expected_config)))
+        if diff:
+            raise DatasetError(f"Dataset {path} was generated with a different config:\n  "
+                               + "\n  ".join(diff) + f"\n{fix}")
+    splits: dict[str, dict[str, np.ndarray]] = {}
+    for rel, meta in manifest.get("files", {}).items():
+        file = path / rel
+        if not file.is_file():
+            raise DatasetError(f"Dataset {path}: file {rel} is missing. {fix}")
+        size = file.stat().st_size
+        if size != meta["bytes"]:
+            raise DatasetError(f"Dataset {path}: {rel} is {size} bytes, the manifest says {meta['bytes']} "
+                               f"(truncated or overwritten). {fix}")
+        if verify and _sha256(file) != meta["sha256"]:
+            raise DatasetError(f"Dataset {path}: {rel} fails its SHA-256 checksum (corrupt). {fix}")
+        try:
+            array = np.load(file, mmap_mode="r")
+        except ValueError as e:
+            raise DatasetError(f"Dataset {path}: {rel} is not a readable .npy file ({e}). {fix}") from None
+        split, name = rel.split("/", 1)
+        splits.setdefault(split, {})[name.removesuffix(".npy")] = array
+    return StoredDataset(path=path, manifest=manifest, splits=splits)

@@ -1,0 +1,79 @@
+"""The icprl command: every DarkRoom config trains under fast_dev_run, overrides, errors, config saving."""
+
+import glob
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from icprl_lightning.cli import main, run_cli
+
+DARKROOM_CONFIGS = ["configs/icpo_darkroom.yaml", "configs/dp2t_darkroom.yaml", "configs/dpt_darkroom.yaml"]
+
+
+def tiny_data_args(root) -> list[str]:
+    return ["--trainer.default_root_dir", str(root), "--data.init_args.root_dir", str(root),
+            "--data.init_args.trajectories_per_task", "3",
+            "--data.init_args.val_trajectories_per_task", "2", "--data.init_args.eval_contexts_per_task", "1",
+            "--data.init_args.calibration_episodes", "2", "--data.init_args.progress", "false"]
+
+
+@pytest.mark.parametrize("config", DARKROOM_CONFIGS + sorted(glob.glob("configs/paper/*darkroom.yaml")))
+def test_config_runs_under_fast_dev_run(config, tmp_path):
+    cli = run_cli(["fit", "--config", config, "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
+                   *tiny_data_args(tmp_path)])
+    assert cli.trainer.state.finished
+    assert cli.model.hparams.max_context == cli.datamodule.context_length  # linked, not repeated
+
+
+def test_overrides_reach_the_model(tmp_path):
+    cli = run_cli(["fit", "--config", "configs/icpo_darkroom.yaml", "--model.init_args.lr", "0.01",
+                   "--model.init_args.lam", "0.3", "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
+                   *tiny_data_args(tmp_path)])
+    assert cli.model.hparams.lr == 0.01 and cli.model.hparams.lam == 0.3
+
+
+def test_unknown_key_is_rejected_by_name(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    cfg = yaml.safe_load(Path("configs/icpo_darkroom.yaml").read_text())
+    cfg["model"]["init_args"]["lamda"] = 0.5
+    bad.write_text(yaml.safe_dump(cfg))
+    proc = subprocess.run([sys.executable, "-m", "icprl_lightning.cli", "fit", "--config", str(bad)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert "lamda" in proc.stderr
+
+
+def test_print_config_shows_linked_model_and_data():
+    proc = subprocess.run([sys.executable, "-m", "icprl_lightning.cli", "fit", "--config",
+                           "configs/icpo_darkroom.yaml", "--print_config"], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    printed = yaml.safe_load(proc.stdout)
+    assert printed["model"]["class_path"] == "icprl_lightning.methods.icpo.ICPOModule"
+    assert printed["data"]["init_args"]["bt_temperature"] == 1.0
+
+
+def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    root = tmp_path / "data"
+    main(["generate", "--config", f"{_repo()}/configs/icpo_darkroom.yaml", *tiny_data_args(root)])
+    assert len([p for p in root.iterdir() if p.name.startswith("darkroom")]) == 1
+    cli = run_cli(["fit", "--config", f"{_repo()}/configs/icpo_darkroom.yaml", "--trainer.max_epochs", "1",
+                   "--trainer.limit_train_batches", "2", "--trainer.limit_val_batches", "1",
+                   "--trainer.logger.init_args.save_dir", str(tmp_path / "runs"), *tiny_data_args(root)])
+    saved = glob.glob(str(tmp_path / "runs" / "icprl" / "*" / "config.yaml"))
+    assert len(saved) == 1
+    assert yaml.safe_load(Path(saved[0]).read_text())["model"]["init_args"]["lam"] == 0.5
+    ckpt = cli.trainer.checkpoint_callback.last_model_path
+    assert ckpt.endswith("last.ckpt")
+    assert "val/darkroom/high/return" in cli.trainer.callback_metrics
+    val = run_cli(["validate", "--config", f"{_repo()}/configs/icpo_darkroom.yaml", "--ckpt_path", ckpt,
+                   "--trainer.logger", "false", *tiny_data_args(root)])
+    assert "val/darkroom/low/return" in val.trainer.callback_metrics
+
+
+def _repo() -> str:
+    return str(Path(__file__).resolve().parents[1])

@@ -1,0 +1,120 @@
+"""Each module updates its parameters; checkpoint -> load_agent -> act; the deployment API's errors."""
+
+import lightning as L
+import pytest
+import torch
+
+from icprl_lightning import StepPreferenceContext, load_agent
+from icprl_lightning.data.contexts import RewardContext
+from icprl_lightning.methods.dpt import DP2TModule, DPTModule
+from icprl_lightning.methods.icpo import ICPOModule
+
+SIZES = dict(n_layer=2, n_embd=32, n_head=2)
+
+
+def _module(cls, dm, **kw):
+    return cls(state_dim=dm.state_dim, action_dim=dm.action_spec.size, discrete=True,
+               max_context=dm.context_length, **SIZES, **kw)
+
+
+@pytest.mark.parametrize("cls,fixture,kw", [
+    (ICPOModule, "tiny_ipref", {}),
+    (ICPOModule, "tiny_ipref", {"pair_source": "context"}),
+    (DP2TModule, "tiny_ipref", {}),
+    (DPTModule, "tiny_reward", {}),
+])
+def test_every_parameter_moves_after_a_step(cls, fixture, kw, request):
+    dm = request.getfixturevalue(fixture)
+    torch.manual_seed(0)
+    model = _module(cls, dm, **kw)
+    before = {k: v.clone() for k, v in model.named_parameters()}
+    opt = model.configure_optimizers()
+    loss, _ = model.loss(next(iter(dm.train_dataloader())))
+    loss.backward()
+    opt.step()
+    frozen = [k for k, v in model.named_parameters() if torch.equal(v, before[k])]
+    assert frozen == [], frozen
+
+
+def test_icpo_refuses_batches_without_pairs(tiny_ipref, tiny_kwargs):
+    from icprl_lightning.data.darkroom_datamodule import DarkRoomDataModule
+
+    dm = DarkRoomDataModule(root_dir=tiny_ipref.root_dir, pairs=False, **tiny_kwargs)
+    with pytest.raises(KeyError, match="pairs: true"):
+        _module(ICPOModule, dm).loss(next(iter(dm.train_dataloader())))
+
+
+@pytest.fixture(scope="module")
+def icpo_checkpoint(tmp_path_factory, request):
+    dm = request.getfixturevalue("tiny_ipref")
+    root = tmp_path_factory.mktemp("ckpt")
+    trainer = L.Trainer(max_steps=2, limit_val_batches=1, logger=False, default_root_dir=root,
+                        enable_progress_bar=False, enable_model_summary=False)
+    model = _module(ICPOModule, dm)
+    trainer.fit(model, datamodule=dm)
+    path = root / "icpo.ckpt"
+    trainer.save_checkpoint(path)
+    return path, dm
+
+
+def _eval_context(dm, quality="high"):
+    return next(s for s in dm.evaluation_suites() if s.quality == quality).context
+
+
+def test_checkpoint_round_trip_cached_equals_uncached(icpo_checkpoint):
+    path, dm = icpo_checkpoint
+    ctx = _eval_context(dm)
+    obs = ctx.states[:, 0]
+    cached = load_agent(path, greedy=True)
+    uncached = load_agent(path, greedy=True, use_cache=False)
+    cached.reset(ctx)
+    uncached.reset(ctx)
+    for _ in range(3):
+        a = cached.act(obs)
+        assert a.shape == (ctx.batch_size,) and a.dtype == torch.int64
+        assert torch.equal(a, uncached.act(obs))
+        obs = torch.rand_like(obs) * 9
+
+
+def test_sampling_is_seeded(icpo_checkpoint):
+    path, dm = icpo_checkpoint
+    ctx = _eval_context(dm)
+    runs = []
+    for _ in range(2):
+        agent = load_agent(path, seed=7)
+        agent.reset(ctx)
+        runs.append(torch.stack([agent.act(ctx.states[:, t]) for t in range(5)]))
+    assert torch.equal(runs[0], runs[1])
+
+
+def test_bad_inputs_are_clear_errors(icpo_checkpoint, tmp_path):
+    path, dm = icpo_checkpoint
+    agent = load_agent(path)
+    ctx = _eval_context(dm)
+    with pytest.raises(RuntimeError, match="reset"):
+        agent.act(torch.zeros(ctx.batch_size, 2))
+    with pytest.raises(ValueError, match=r"states must have shape \[B, T, S=2\]"):
+        agent.reset(StepPreferenceContext(ctx.states[..., :1], ctx.actions, ctx.alt_actions, ctx.preferred))
+    with pytest.raises(ValueError, match="actions must be an integer tensor"):
+        agent.reset(StepPreferenceContext(ctx.states, ctx.actions.float(), ctx.alt_actions, ctx.preferred))
+    with pytest.raises(ValueError, match="outside"):
+        agent.reset(StepPreferenceContext(ctx.states, ctx.actions + 5, ctx.alt_actions, ctx.preferred))
+    with pytest.raises(ValueError, match="takes a StepPreferenceContext"):
+        agent.reset(RewardContext(ctx.states, ctx.actions, ctx.preferred, ctx.states))
+    long = StepPreferenceContext(*(torch.cat([x, x], 1) for x in (ctx.states, ctx.actions, ctx.alt_actions,
+                                                                 ctx.preferred)))
+    with pytest.raises(ValueError, match="at most 100"):
+        agent.reset(long)
+    agent.reset(ctx)
+    with pytest.raises(ValueError, match=r"obs must be a float tensor of shape \[B=\d+, S=2\]"):
+        agent.act(torch.zeros(ctx.batch_size + 1, 2))
+    with pytest.raises(FileNotFoundError, match="No checkpoint"):
+        load_agent(tmp_path / "missing.ckpt")
+    broken = tmp_path / "broken.ckpt"
+    broken.write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(ValueError, match="not a readable checkpoint"):
+        load_agent(broken)
+    foreign = tmp_path / "foreign.ckpt"
+    torch.save({"state_dict": {}}, foreign)
+    with pytest.raises(ValueError, match="not an icprl_lightning checkpoint"):
+        load_agent(foreign)
