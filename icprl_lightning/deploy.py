@@ -6,9 +6,11 @@
     action = agent.act(obs)                           # obs [B, S] -> [B] (discrete) | [B, A]
 
 ``reset`` encodes the context once into a KV cache; each ``act`` runs only the query token against it
-(paper, "DP²T Deployment" / "ICPO Deployment": a_h ~ T_θ(· | s_h, D) with D fixed). Discrete actions
-are sampled from T_θ by default (``greedy=True`` takes the argmax); continuous actions are the policy
-mean. Wrong shapes or dtypes raise ``ValueError`` naming the expected shape.
+(paper, "DP²T Deployment" / "ICPO Deployment", with D fixed). Discrete actions are the argmax of
+T_θ(· | s_h, D) by default; ``greedy=False`` samples a_h ~ T_θ(· | s_h, D) as the paper's text writes it.
+Greedy is the default because ICPO's λ < 1 objective leaves probability mass on the non-preferred
+actions, so the sampled policy is much noisier than its mode (docs/RESULTS.md reports both).
+Continuous actions are the policy mean. Wrong shapes or dtypes raise ``ValueError`` naming the expected shape.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from icprl_lightning.models.transformer import KVCache
 class Agent:
     """A deployed in-context policy for B tasks at once (see the module docstring)."""
 
-    def __init__(self, policy: InContextPolicy, greedy: bool = False, use_cache: bool = True,
+    def __init__(self, policy: InContextPolicy, greedy: bool = True, use_cache: bool = True,
                  seed: int | None = None) -> None:
         self.policy = policy
         self.greedy = greedy
@@ -81,7 +83,7 @@ class Agent:
         return torch.multinomial(out.softmax(-1), 1, generator=self.generator).squeeze(-1)
 
 
-def load_agent(checkpoint: str | Path, greedy: bool = False, use_cache: bool = True, seed: int | None = None,
+def load_agent(checkpoint: str | Path, greedy: bool = True, use_cache: bool = True, seed: int | None = None,
                map_location: str | torch.device = "cpu"):
     """Load any icprl_lightning method's checkpoint as a deployable agent."""
     path = Path(checkpoint)

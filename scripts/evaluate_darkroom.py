@@ -58,7 +58,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--run", action="append", required=True, help="NAME=CONFIG:CHECKPOINT")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--greedy", action="store_true", help="argmax actions instead of sampling")
+    parser.add_argument("--sample", action="store_true", help="sample actions from T(a|s,D) instead of argmax")
     parser.add_argument("--setting", default="ipref", help="label used in the title and file names")
     parser.add_argument("--out", required=True, help="output path without extension")
     args = parser.parse_args()
@@ -66,14 +66,14 @@ def main() -> None:
     for spec in args.run:
         name, _, rest = spec.partition("=")
         config, _, checkpoint = rest.partition(":")
-        results[name] = evaluate(config, checkpoint, args.seeds, args.greedy)
+        results[name] = evaluate(config, checkpoint, args.seeds, greedy=not args.sample)
     first = next(iter(results.values()))
     results["behavior"] = {q: {"return": first[q]["behavior_return"], "return_sem": first[q]["behavior_return_sem"]}
                            for q in QUALITIES}
     results["optimal"] = {q: {"return": first[q]["optimal_return"], "return_sem": 0.0} for q in QUALITIES}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"setting": args.setting, "seeds": args.seeds, "greedy": args.greedy, "results": results}
+    payload = {"setting": args.setting, "seeds": args.seeds, "greedy": not args.sample, "results": results}
     out.with_suffix(".json").write_text(json.dumps(payload, indent=2))
     lines = ["| method | " + " | ".join(QUALITIES) + " |", "|---|" + "---|" * len(QUALITIES)]
     for name, res in results.items():

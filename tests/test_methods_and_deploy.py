@@ -81,7 +81,7 @@ def test_sampling_is_seeded(icpo_checkpoint):
     ctx = _eval_context(dm)
     runs = []
     for _ in range(2):
-        agent = load_agent(path, seed=7)
+        agent = load_agent(path, greedy=False, seed=7)
         agent.reset(ctx)
         runs.append(torch.stack([agent.act(ctx.states[:, t]) for t in range(5)]))
     assert torch.equal(runs[0], runs[1])

@@ -15,7 +15,7 @@ from icprl_lightning.evaluation import rollout_in_context, summarize
 
 
 class InContextRolloutCallback(L.Callback):
-    def __init__(self, every_n_epochs: int = 1, greedy: bool = False, seed: int = 0) -> None:
+    def __init__(self, every_n_epochs: int = 1, greedy: bool = True, seed: int = 0) -> None:
         self.every_n_epochs = every_n_epochs
         self.greedy = greedy
         self.seed = seed

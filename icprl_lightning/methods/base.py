@@ -60,7 +60,7 @@ class InContextModule(L.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["icprl_class_path"] = f"{type(self).__module__}.{type(self).__qualname__}"
 
-    def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None):
+    def make_agent(self, greedy: bool = True, use_cache: bool = True, seed: int | None = None):
         from icprl_lightning.deploy import Agent
 
         return Agent(self.policy, greedy=greedy, use_cache=use_cache, seed=seed)
