@@ -56,22 +56,31 @@ def per_task_mean(values: np.ndarray, task_index: np.ndarray) -> np.ndarray:
 
 @torch.no_grad()
 def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0) -> dict[str, np.ndarray]:
-    """Run one episode per context; returns per-episode ``return`` (and ``success`` when the env reports it)."""
+    """Run one episode per context; returns per-episode ``return`` (and ``success`` when the env reports it).
+
+    ``success`` is 1 for an episode whose ``info["success"]`` was true at any step (metaworld's criterion).
+    The env is closed afterwards.
+    """
     env = suite.make_env()
-    obs, _ = env.reset(seed=seed)
-    agent.reset(suite.context)
-    total = np.zeros(env.num_envs)
-    success = np.zeros(env.num_envs, dtype=bool)
-    reports_success = False
-    for _ in range(suite.horizon):
-        actions = agent.act(torch.as_tensor(obs, dtype=torch.float32))
-        obs, reward, terminated, truncated, info = env.step(actions.cpu().numpy())
-        total += reward
-        if "success" in info:
-            reports_success = True
-            success |= np.asarray(info["success"], dtype=bool)
-        if np.all(terminated | truncated):
-            break
+    try:
+        obs, _ = env.reset(seed=seed)
+        agent.reset(suite.context)
+        total = np.zeros(env.num_envs)
+        success = np.zeros(env.num_envs, dtype=bool)
+        reports_success = False
+        for _ in range(suite.horizon):
+            actions = agent.act(torch.as_tensor(obs, dtype=torch.float32))
+            obs, reward, terminated, truncated, info = env.step(actions.cpu().numpy())
+            total += reward
+            if "success" in info:
+                reports_success = True
+                success |= np.asarray(info["success"], dtype=bool)
+            if np.all(terminated | truncated):
+                break
+    finally:
+        # Vector envs may hold worker processes (Meta-World); release them now, not at garbage collection.
+        if hasattr(env, "close"):
+            env.close()
     out = {"return": total}
     if reports_success:
         out["success"] = success.astype(np.float64)

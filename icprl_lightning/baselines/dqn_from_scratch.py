@@ -1,0 +1,147 @@
+"""DQN trained from scratch on each held-out DarkRoom goal: the paper's online-RL yardstick ("SAC from
+scratch", appendix "Baseline Implementation Details") for DarkRoom's discrete actions.
+
+Algorithm. Stable-Baselines3 has no discrete SAC, so we use SB3 ``DQN("MlpPolicy")``: like SAC it is
+off-policy with a replay buffer and a learned Q-function, which is what makes 1,000 episodes enough on a
+sparse-reward grid; PPO (on-policy, SB3 default 2,048-step rollouts = 20 episodes per update) would
+make a handful of updates on the CPU budget below and waste the replay of rare goal visits.
+Hyperparameters are SB3's defaults except the two whose defaults are tuned for 10⁷-step Atari runs:
+``target_update_interval`` = 1,000 steps (10 episodes; the default 10,000 would leave the target
+network untrained for the whole CPU budget) and ``exploration_fraction`` = 0.3 of the budget (the
+default 0.1 would stop exploring after a few episodes). ``learning_starts`` stays 100.
+
+Protocol, as for SAC on Meta-World: one agent per (goal, seed) on ``DarkRoomGoalEnv`` (H = 100, the
+goal is not observed; it is a constant of the task); every ``eval_every`` episodes the greedy policy is
+evaluated on ``eval_episodes`` fixed-seed episodes (random starts); the best checkpoint is restored
+and reported on ``test_episodes`` fresh episodes beside the uniform policy and the optimal policy
+(closed form, ``oracles/darkroom.py``) on the same starts; ``normalized_return`` = R / R_optimal, the
+DarkRoom oracle's share-of-optimal convention.
+
+Budget. The paper trains 1,000 episodes (100,000 steps) per goal; the CPU default is 100 episodes
+(10,000 steps, ≈ 16 s of CPU) per goal on the 20 held-out goals:
+
+    python -m icprl_lightning.baselines.dqn_from_scratch --episodes 100 \
+        --out docs/results/dqn_from_scratch_darkroom.json
+
+Evaluation uses the greedy policy as a lookup table over the 100 cells (``greedy_table_act``): the same
+actions as ``predict(deterministic=True)`` at one network call per evaluation instead of one per step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import stable_baselines3
+import torch
+from stable_baselines3 import DQN
+
+from icprl_lightning.baselines.sb3_common import Act, summarize_over_goals, train_from_scratch, write_json_atomic
+from icprl_lightning.envs.darkroom import N_ACTIONS, DarkRoomFamily
+from icprl_lightning.envs.darkroom_gym import DarkRoomGoalEnv
+from icprl_lightning.oracles.darkroom import optimal_actions
+
+PAPER_EPISODES = 1000
+DEFAULT_EPISODES = 100
+TARGET_UPDATE_STEPS = 1000
+EXPLORATION_FRACTION = 0.3
+
+
+def darkroom_references(env: DarkRoomGoalEnv, seed: int) -> dict[str, Act]:
+    """Uniform actions (seeded) and the optimal policy, which reads ``env``'s goal: run them on ``env``."""
+    rng = np.random.default_rng(seed)
+    return {"uniform": lambda obs: int(rng.integers(N_ACTIONS)),
+            "optimal": lambda obs: int(optimal_actions(env.state, env.goal))}
+
+
+def greedy_table_act(model: DQN) -> Act:
+    """The greedy policy as a lookup table over the grid's cells: one Q-network call per evaluation.
+
+    Same actions as ``model.predict(obs, deterministic=True)`` (argmax of the same Q-values), without a
+    network call per step; the observation is the agent's integer cell.
+    """
+    size = model.observation_space.high[0].astype(int) + 1
+    cells = np.stack(np.meshgrid(np.arange(size), np.arange(size), indexing="ij"), -1).reshape(-1, 2)
+    with torch.no_grad():
+        q = model.q_net(torch.as_tensor(cells, dtype=torch.float32))
+    table = q.argmax(dim=1).numpy().reshape(size, size)
+    return lambda obs: int(table[int(obs[0]), int(obs[1])])
+
+
+def run_goal(family: DarkRoomFamily, goal: np.ndarray, seed: int, episodes: int, eval_every: int = 5,
+             eval_episodes: int = 10, test_episodes: int = 50) -> dict[str, Any]:
+    """Train DQN from scratch on one goal for ``episodes`` episodes; the best checkpoint's test results."""
+    model_seed, eval_seed, test_seed, ref_seed = (int(s) for s in np.random.SeedSequence(seed).generate_state(4))
+    horizon = family.horizon
+    model = DQN("MlpPolicy", DarkRoomGoalEnv(family, goal), seed=model_seed, device="cpu",
+                target_update_interval=TARGET_UPDATE_STEPS, exploration_fraction=EXPLORATION_FRACTION)
+    eval_env = DarkRoomGoalEnv(family, goal)
+    result = train_from_scratch(model, eval_env, episodes * horizon, eval_every * horizon, eval_episodes, eval_seed,
+                                test_episodes, test_seed, darkroom_references(eval_env, ref_seed), greedy_table_act)
+    result["normalized_return"] = result["return"] / result["reference_returns"]["optimal"]
+    return {"goal": np.asarray(goal).tolist(), "seed": seed, **result}
+
+
+def run(family: DarkRoomFamily, goals: np.ndarray, seeds: Sequence[int], episodes: int, eval_every: int = 5,
+        eval_episodes: int = 10, test_episodes: int = 50, progress: bool = False) -> dict[str, Any]:
+    """All (goal, seed) runs; per goal the mean over seeds, then mean ± sem over goals."""
+    start, cpu_start = time.perf_counter(), time.process_time()
+    keys = ("return", "success", "normalized_return")
+    per_goal = []
+    for g, goal in enumerate(goals):
+        runs = [run_goal(family, goal, int(np.random.SeedSequence([seed, g]).generate_state(1)[0]), episodes,
+                         eval_every, eval_episodes, test_episodes) for seed in seeds]
+        per_goal.append({"goal": np.asarray(goal).tolist(),
+                         **{k: float(np.mean([r[k] for r in runs])) for k in keys}, "runs": runs})
+        if progress:
+            print(f"goal {g}: return {per_goal[-1]['return']:.1f} (optimal "
+                  f"{runs[0]['reference_returns']['optimal']:.1f})", file=sys.stderr, flush=True)
+    return {"algorithm": f"DQN (stable-baselines3 {stable_baselines3.__version__}, defaults except "
+                         f"target_update_interval={TARGET_UPDATE_STEPS}, exploration_fraction={EXPLORATION_FRACTION})",
+            "env": f"DarkRoom {family.size}x{family.size}, terminate_on_goal={family.terminate_on_goal}",
+            "horizon": family.horizon, "episodes_per_goal": episodes, "paper_episodes_per_goal": PAPER_EPISODES,
+            "seeds": list(seeds), "eval_every_episodes": eval_every, "eval_episodes": eval_episodes,
+            "test_episodes": test_episodes,
+            "selection": "best checkpoint by mean evaluation return (fixed-seed episodes), reported on fresh episodes",
+            **summarize_over_goals(per_goal, keys), "n_goals": len(per_goal), "per_goal": per_goal,
+            "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu_start,
+            "platform": platform.platform(),
+            "torch_threads": torch.get_num_threads()}
+
+
+def main(args: Sequence[str] | None = None) -> Path:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--episodes", type=int, default=DEFAULT_EPISODES,
+                        help=f"training episodes per goal (paper: {PAPER_EPISODES})")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--family-seed", type=int, default=0, help="DarkRoomFamily seed (fixes the 20 test goals)")
+    parser.add_argument("--n-goals", type=int, default=None, help="only the first N held-out goals (smoke runs)")
+    parser.add_argument("--eval-every", type=int, default=5, help="episodes between checkpoint evaluations")
+    parser.add_argument("--eval-episodes", type=int, default=10)
+    parser.add_argument("--test-episodes", type=int, default=50)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for these MLPs)")
+    parser.add_argument("--out", type=Path, default=Path("docs/results/dqn_from_scratch_darkroom.json"))
+    ns = parser.parse_args(args)
+    torch.set_num_threads(ns.threads)
+    family = DarkRoomFamily(seed=ns.family_seed)
+    goals = family.test_goals[: ns.n_goals]
+    result = run(family, goals, ns.seeds, ns.episodes, ns.eval_every, ns.eval_episodes, ns.test_episodes,
+                 progress=True)
+    result["family_seed"] = ns.family_seed
+    result["command"] = "python -m icprl_lightning.baselines.dqn_from_scratch " + " ".join(
+        sys.argv[1:] if args is None else args)
+    out = write_json_atomic(ns.out, result)
+    print(f"return {result['return']['mean']:.1f} ± {result['return']['sem']:.1f}, success "
+          f"{result['success']['mean']:.2f} ± {result['success']['sem']:.2f} -> {out}")
+    return out
+
+
+if __name__ == "__main__":
+    main()
