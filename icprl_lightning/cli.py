@@ -15,11 +15,11 @@ import os
 import sys
 import warnings
 
+import lightning as L
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 from lightning.pytorch.loggers import WandbLogger
 
 from icprl_lightning.data.datamodule import InContextDataModule
-from icprl_lightning.methods.base import InContextModule
 
 
 class SaveConfigToRun(SaveConfigCallback):
@@ -48,7 +48,7 @@ class ICPRLCLI(LightningCLI):
 def run_cli(args: list[str], run: bool = True) -> ICPRLCLI:
     """Parse ``args`` as the command line would be (tests call this) and run the subcommand."""
     warnings.filterwarnings("ignore", message=".*args parameter is intended to run from within Python.*")
-    return ICPRLCLI(InContextModule, InContextDataModule, subclass_mode_model=True, subclass_mode_data=True,
+    return ICPRLCLI(L.LightningModule, InContextDataModule, subclass_mode_model=True, subclass_mode_data=True,
                     save_config_callback=SaveConfigToRun, args=args, run=run,
                     parser_kwargs={"default_env": False})
 

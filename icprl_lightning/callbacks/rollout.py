@@ -15,7 +15,7 @@ from icprl_lightning.evaluation import rollout_in_context, summarize
 
 
 class InContextRolloutCallback(L.Callback):
-    def __init__(self, every_n_epochs: int = 1, greedy: bool = True, seed: int = 0) -> None:
+    def __init__(self, every_n_epochs: int = 1, greedy: bool | None = None, seed: int = 0) -> None:
         self.every_n_epochs = every_n_epochs
         self.greedy = greedy
         self.seed = seed
@@ -28,7 +28,10 @@ class InContextRolloutCallback(L.Callback):
         last = trainer.max_epochs is not None and epoch >= trainer.max_epochs
         if trainer.state.fn == "fit" and epoch % self.every_n_epochs != 0 and not last:
             return
-        agent = pl_module.make_agent(greedy=self.greedy, seed=self.seed)
+        # None: the method's own default (argmax for DPT/DP2T/ICPO, sampling for DIT/ICRG, whose
+        # advantage-weighted policies are degenerate at their mode)
+        options = {} if self.greedy is None else {"greedy": self.greedy}
+        agent = pl_module.make_agent(seed=self.seed, **options)
         self.last_results = {}
         for suite in trainer.datamodule.evaluation_suites():
             result = summarize(suite, rollout_in_context(agent, suite, seed=self.seed))

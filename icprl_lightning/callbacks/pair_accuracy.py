@@ -1,0 +1,31 @@
+"""RewardGen on held-out tasks: how often R_ψ's summed rewards order an unseen task's pair as its label does.
+
+At each validation epoch (the sanity check is skipped) the callback scores the held-out goals' pairs of
+every context quality, each conditioned on another pair of its goal (``heldout_pairs()`` of the T-PRL
+DataModule), and logs ``val/<env>/<quality>/pair_accuracy`` and ``val/<env>/heldout_pair_accuracy`` (all
+qualities). Chance is 0.5; tied returns carry coin-flip labels, so the ceiling is below 1 (the manifest's
+``eval_statistics`` give the label agreement and tie fraction per quality).
+"""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+
+
+class HeldOutPairAccuracyCallback(L.Callback):
+    def __init__(self) -> None:
+        self.last_results: dict[str, float] = {}
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.sanity_checking:
+            return
+        env = trainer.datamodule.family_name
+        correct = {}
+        for quality, batch in trainer.datamodule.heldout_pairs().items():
+            batch = {k: v.to(pl_module.device) for k, v in batch.items()}
+            correct[quality] = pl_module.pair_correct(batch).float().cpu()
+        results = {f"val/{env}/{q}/pair_accuracy": float(c.mean()) for q, c in correct.items()}
+        results[f"val/{env}/heldout_pair_accuracy"] = float(torch.cat(list(correct.values())).mean())
+        self.last_results = results
+        pl_module.log_dict(results, on_epoch=True)

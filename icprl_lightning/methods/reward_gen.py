@@ -1,0 +1,111 @@
+"""RewardGen: ICRG's in-context reward estimator R_ψ(s, a | D^T) (paper section 5.3, eq. (L_R^T)).
+
+R_ψ, conditioned on a T-PRL pair (ξ⁺, ξ⁻), is trained with the Bradley–Terry likelihood of a pair's
+label over the per-step sums of its rewards, −log σ(Σ_h R_ψ(s⁺_h, a⁺_h | D^T) − Σ_h R_ψ(s⁻_h, a⁻_h | D^T)).
+Which pair is scored (``pair_source``):
+
+* ``"other_pair"`` (default): another pair of the same task (``pair_*`` fields, ``data.pairs: true``) is
+  the context. The scored transitions are not in view, so their rewards must come from the task the
+  model infers from the context. This is how R_ψ is used: ICRG labels trajectories that are not in its
+  context (another pair's in pretraining, the unlabeled behavior trajectory at deployment).
+* ``"context"``: the paper's literal form, the context pair's own transitions. The label is then part of
+  the context of the pair it scores, and matching each query to the winner's tokens fits the loss
+  without inferring the task.
+
+All 2H transitions of the scored pair are queries that each see the whole context, one pass (the
+paper's "read out at the last time step", see ``models/estimator.py``). Logged: ``loss`` and
+``pair_accuracy`` (summed rewards order the pair as its label does); the held-out tasks' accuracy comes
+from ``HeldOutPairAccuracyCallback``. Each validation epoch stores the mean and std of R_ψ's outputs on
+the validation pairs in the model, for ICRG's standardized labels.
+
+RewardGen is not a policy: deploy it through an ICRG checkpoint (``methods/icrg.py``).
+"""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+from torch import Tensor
+
+from icprl_lightning.data.contexts import ActionSpec, context_from_batch
+from icprl_lightning.methods.losses import trajectory_preference_loss
+from icprl_lightning.models.estimator import InContextRewardModel
+
+PAIR_SOURCES = ("other_pair", "context")
+
+
+class RewardGenModule(L.LightningModule):
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
+                 pair_source: str = "other_pair", n_layer: int = 4, n_embd: int = 32, n_head: int = 4,
+                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0) -> None:
+        super().__init__()
+        if pair_source not in PAIR_SOURCES:
+            raise ValueError(f"pair_source must be one of {PAIR_SOURCES}, got {pair_source!r}")
+        self.save_hyperparameters()
+        self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
+        self.reward = InContextRewardModel(state_dim, self.action_spec, n_layer, n_embd, n_head, max_context, dropout)
+        self._moments = torch.zeros(3, dtype=torch.float64)  # count, sum, sum of squares of val outputs
+
+    def forward(self, context, states: Tensor, actions: Tensor) -> Tensor:
+        """Raw rewards R_ψ(s, a | context) for states (B, Q, S), actions (B, Q) -> (B, Q)."""
+        return self.reward(context, states, actions)
+
+    def pair_rewards(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+        """(Σ_h r̂(ξ_a), Σ_h r̂(ξ_b), r̂ (B, 2H)) of the scored pair, conditioned per ``pair_source``."""
+        scored = context_from_batch("trajectory_preference", batch)
+        if self.hparams.pair_source == "other_pair":
+            if "pair_states_a" not in batch:
+                raise KeyError("RewardGen with pair_source=other_pair needs data.init_args.pairs: true")
+            context = context_from_batch("trajectory_preference", batch, prefix="pair_")
+        else:
+            context = scored
+        h = scored.states_a.shape[1]
+        r = self(context, torch.cat([scored.states_a, scored.states_b], 1),
+                 torch.cat([scored.actions_a, scored.actions_b], 1))
+        return r[:, :h].sum(1), r[:, h:].sum(1), r
+
+    @torch.no_grad()
+    def pair_correct(self, batch: dict[str, Tensor]) -> Tensor:
+        """(B,) bool: the summed rewards order each scored pair as its label does."""
+        ret_a, ret_b, _ = self.pair_rewards(batch)
+        return (ret_a > ret_b) == (batch["preferred"] > 0.5)
+
+    def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor], Tensor]:
+        ret_a, ret_b, r = self.pair_rewards(batch)
+        loss = trajectory_preference_loss(ret_a, ret_b, batch["preferred"])
+        accuracy = ((ret_a > ret_b) == (batch["preferred"] > 0.5)).float().mean()
+        return loss, {"pair_accuracy": accuracy}, r
+
+    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
+        loss, metrics, _ = self.loss(batch)
+        self.log("train/loss", loss, prog_bar=True)
+        self.log_dict({f"train/{k}": v for k, v in metrics.items()})
+        return loss
+
+    def on_validation_epoch_start(self) -> None:
+        self._moments.zero_()
+
+    def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        loss, metrics, r = self.loss(batch)
+        self.log("val/loss", loss, prog_bar=True)
+        self.log_dict({f"val/{k}": v for k, v in metrics.items()})
+        r = r.detach().double().cpu()
+        self._moments += torch.stack([torch.tensor(float(r.numel()), dtype=torch.float64), r.sum(), r.pow(2).sum()])
+
+    def on_validation_epoch_end(self) -> None:
+        n, total, squares = self._moments.tolist()
+        if n > 1:
+            mean = total / n
+            std = max((squares / n - mean**2) ** 0.5, 1e-6)
+            self.reward.reward_mean.fill_(mean)
+            self.reward.reward_std.fill_(std)
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        return torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint["icprl_class_path"] = f"{type(self).__module__}.{type(self).__qualname__}"
+
+    def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None):
+        raise TypeError("a RewardGen checkpoint holds a reward model, not a policy: train ICRG on it (configs/"
+                        "icrg_darkroom.yaml, model.init_args.reward_gen_checkpoint) and deploy that checkpoint")

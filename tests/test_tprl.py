@@ -1,0 +1,286 @@
+"""T-PRL methods: RewardGen, DIT, ICRG and DP²T on pairs — losses by hand, updates, deployment, configs."""
+
+import math
+import pathlib
+
+import lightning as L
+import pytest
+import torch
+
+from icprl_lightning import TrajectoryPreferenceContext, load_agent
+from icprl_lightning.cli import run_cli
+from icprl_lightning.data.darkroom_tprl_datamodule import DarkRoomTPRLDataModule
+from icprl_lightning.methods.dit import DITModule, discounted_returns
+from icprl_lightning.methods.dpt import DP2TModule
+from icprl_lightning.methods.icrg import ICRGAgent, ICRGModule
+from icprl_lightning.methods.losses import advantage_weighted_loss, dit_value_loss, trajectory_preference_loss
+from icprl_lightning.methods.reward_gen import RewardGenModule
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+TPRL_TINY = dict(trajectories_per_task=3, val_trajectories_per_task=2, eval_contexts_per_task=2,
+                 calibration_episodes=2, progress=False, batch_size=8)
+SIZES = dict(n_layer=1, n_embd=16, n_head=2)
+ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Tiny models step by step (rollouts): a second thread only adds synchronization on a shared 2-core box."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+# ---- losses by hand ------------------------------------------------------------------------------
+
+def test_trajectory_preference_loss_by_hand():
+    # pair 1: ξ_a won with R_a − R_b = 1 -> −log σ(1); pair 2: ξ_b won with R_a − R_b = −2 -> −log σ(2)
+    got = trajectory_preference_loss(torch.tensor([3.0, 0.0]), torch.tensor([2.0, 2.0]), torch.tensor([1.0, 0.0]))
+    assert got.item() == pytest.approx((math.log(1 + math.exp(-1)) + math.log(1 + math.exp(-2))) / 2, rel=1e-6)
+    # the wrong label on pair 2 costs −log σ(−2)
+    got = trajectory_preference_loss(torch.tensor([0.0]), torch.tensor([2.0]), torch.tensor([1.0]))
+    assert got.item() == pytest.approx(math.log(1 + math.exp(2)), rel=1e-6)
+
+
+def test_discounted_returns_and_value_loss_by_hand():
+    g = discounted_returns(torch.tensor([[1.0, 0.0, 2.0], [0.0, 0.0, 1.0]]), gamma=0.5)
+    torch.testing.assert_close(g, torch.tensor([[1.5, 1.0, 2.0], [0.25, 0.5, 1.0]]))
+    q, v, target = torch.tensor([1.0, 2.0]), torch.tensor([0.0, 0.0]), torch.tensor([1.0, 0.0])
+    assert dit_value_loss(q, v, target).item() == pytest.approx((0 + 4) / 2 + (1 + 0) / 2)
+
+
+def test_advantage_weighted_loss_by_hand_with_clipping():
+    loglik = torch.tensor([math.log(0.5), math.log(0.25), math.log(0.1)], requires_grad=True)
+    adv = torch.tensor([0.0, 1.0, 10.0])
+    # weights exp(A/η) with η = 0.5: [1, e², e²⁰ -> clipped at 20]
+    expected = -(math.log(0.5) + math.exp(2) * math.log(0.25) + 20 * math.log(0.1)) / 3
+    loss = advantage_weighted_loss(loglik, adv, eta=0.5, max_weight=20.0)
+    assert loss.item() == pytest.approx(expected, rel=1e-6)
+    loss.backward()
+    torch.testing.assert_close(loglik.grad, -torch.tensor([1.0, math.exp(2), 20.0]) / 3)
+
+
+# ---- modules -------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def tprl(data_root) -> DarkRoomTPRLDataModule:
+    dm = DarkRoomTPRLDataModule(root_dir=data_root, pairs=True, query_labels=True, **TPRL_TINY)
+    dm.prepare_data()
+    return dm
+
+
+@pytest.fixture(scope="module")
+def tprl_rewards(data_root) -> DarkRoomTPRLDataModule:
+    dm = DarkRoomTPRLDataModule(context_kind="reward_trajectory", root_dir=data_root, **TPRL_TINY)
+    dm.prepare_data()
+    return dm
+
+
+@pytest.fixture(scope="module")
+def reward_gen_ckpt(tprl, tmp_path_factory) -> pathlib.Path:
+    torch.manual_seed(0)
+    trainer = L.Trainer(max_steps=2, limit_val_batches=1, logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False)
+    trainer.fit(RewardGenModule(**ENV, **SIZES), datamodule=tprl)
+    path = tmp_path_factory.mktemp("rg") / "reward_gen.ckpt"
+    trainer.save_checkpoint(path)
+    return path
+
+
+def _step_and_compare(model, batch) -> dict[str, bool]:
+    before = {k: v.clone() for k, v in model.named_parameters()}
+    opt = model.configure_optimizers()
+    model.loss(batch)[0].backward()
+    opt.step()
+    return {k: not torch.equal(v, before[k]) for k, v in model.named_parameters()}
+
+
+@pytest.mark.parametrize("pair_source", ["other_pair", "context"])
+def test_reward_gen_updates_every_parameter(tprl, pair_source):
+    torch.manual_seed(0)
+    moved = _step_and_compare(RewardGenModule(**ENV, **SIZES, pair_source=pair_source),
+                              next(iter(tprl.train_dataloader())))
+    assert all(moved.values()), [k for k, m in moved.items() if not m]
+
+
+def test_dp2t_on_pairs_updates_every_parameter(tprl):
+    torch.manual_seed(0)
+    moved = _step_and_compare(DP2TModule(**ENV, **SIZES, context_kind="trajectory_preference"),
+                              next(iter(tprl.train_dataloader())))
+    assert all(moved.values()), [k for k, m in moved.items() if not m]
+
+
+@pytest.mark.parametrize("value_epochs,learns", [(1, ("q_value", "v_value")), (0, ("policy",))])
+def test_dit_phases_update_only_their_networks(tprl_rewards, value_epochs, learns):
+    torch.manual_seed(0)
+    moved = _step_and_compare(DITModule(**ENV, **SIZES, value_epochs=value_epochs),
+                              next(iter(tprl_rewards.train_dataloader())))
+    for name, m in moved.items():
+        assert m == name.startswith(learns), name
+
+
+def test_dit_on_continuous_actions_weights_the_gaussian_mean_likelihood():
+    torch.manual_seed(0)
+    model = DITModule(state_dim=3, action_dim=2, discrete=False, max_context=10, value_epochs=0, **SIZES)
+    batch = {}
+    for side in "ab":
+        batch.update({f"states_{side}": torch.rand(4, 10, 3), f"actions_{side}": torch.rand(4, 10, 2) * 2 - 1,
+                      f"rewards_{side}": torch.rand(4, 10)})
+    a, b = model.labeled_trajectories(batch)
+    mean = model.policy(a, b.states, torch.full((10,), 10))
+    torch.testing.assert_close(model.log_likelihood(a, b), -(mean - b.actions).pow(2).sum(-1))
+    moved = _step_and_compare(model, batch)
+    assert all(m == name.startswith("policy") for name, m in moved.items())
+
+
+def test_icrg_trains_dit_on_rewardgen_labels_and_never_updates_rewardgen(tprl, reward_gen_ckpt):
+    torch.manual_seed(0)
+    model = ICRGModule(**ENV, **SIZES, reward_gen_checkpoint=str(reward_gen_ckpt), value_epochs=0)
+    stage1 = RewardGenModule.load_from_checkpoint(reward_gen_ckpt, weights_only=False)
+    torch.testing.assert_close(model.reward_gen.state_dict(), stage1.reward.state_dict())
+    batch = next(iter(tprl.train_dataloader()))
+    a, _ = model.labeled_trajectories(batch)
+    assert a.rewards.shape == (8, 100) and a.rewards.std() > 0
+    moved = _step_and_compare(model, batch)
+    for name, m in moved.items():
+        assert m == name.startswith("policy"), name
+    with pytest.raises(KeyError, match="pairs: true"):
+        model.loss({k: v for k, v in batch.items() if not k.startswith("pair_")})
+    with pytest.raises(KeyError, match="reward_trajectory"):
+        DITModule(**ENV, **SIZES).loss(batch)
+
+
+def test_icrg_refuses_a_checkpoint_that_is_not_rewardgen(tprl, tmp_path):
+    path = _fit_and_save(DP2TModule(**ENV, **SIZES, context_kind="trajectory_preference"), tprl, tmp_path / "x.ckpt")
+    with pytest.raises(ValueError, match="not a RewardGen checkpoint"):
+        ICRGModule(**ENV, **SIZES, reward_gen_checkpoint=str(path))
+    with pytest.raises(ValueError, match="needs reward_gen_checkpoint"):
+        ICRGModule(**ENV, **SIZES)
+
+
+def test_rewardgen_queries_do_not_interact(tprl):
+    """Scoring all 2H transitions in one pass equals scoring each alone after the context (the last position)."""
+    torch.manual_seed(0)
+    model = RewardGenModule(**ENV, **SIZES).eval()
+    batch = next(iter(tprl.train_dataloader()))
+    ctx = TrajectoryPreferenceContext(*(batch[k][:2] for k in ("states_a", "actions_a", "states_b", "actions_b",
+                                                               "preferred")))
+    states, actions = ctx.states_b[:, :6], ctx.actions_b[:, :6]
+    together = model(ctx, states, actions)
+    alone = torch.cat([model(ctx, states[:, i:i + 1], actions[:, i:i + 1]) for i in range(6)], dim=1)
+    torch.testing.assert_close(together, alone)
+
+
+# ---- deployment ------------------------------------------------------------------------------------
+
+def _fit_and_save(model, dm, path) -> pathlib.Path:
+    trainer = L.Trainer(max_steps=1, limit_val_batches=1, logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, num_sanity_val_steps=0)
+    trainer.fit(model, datamodule=dm)
+    trainer.save_checkpoint(path)
+    return path
+
+
+def test_icrg_checkpoint_deploys_alone_and_labels_the_behavior_trajectory(tprl, reward_gen_ckpt, tmp_path):
+    torch.manual_seed(0)
+    model = ICRGModule(**ENV, **SIZES, reward_gen_checkpoint=str(reward_gen_ckpt))
+    path = _fit_and_save(model, tprl, tmp_path / "icrg.ckpt")
+    moved_away = tmp_path / "gone.ckpt"
+    reward_gen_ckpt.rename(moved_away)  # the ICRG checkpoint must not need stage 1's file
+    try:
+        agent = load_agent(path, greedy=True)
+        uncached = load_agent(path, greedy=True, use_cache=False)
+    finally:
+        moved_away.rename(reward_gen_ckpt)
+    assert isinstance(agent, ICRGAgent)
+    ctx = next(s for s in tprl.evaluation_suites() if s.quality == "low").context
+    agent.reset(ctx)
+    uncached.reset(ctx)
+    expected = (model.reward_gen(ctx, ctx.behavior_states, ctx.behavior_actions) - model.reward_gen.reward_mean) \
+        / model.reward_gen.reward_std
+    torch.testing.assert_close(agent.labeled_context.rewards, expected)
+    obs = ctx.behavior_states[:, 0]
+    for _ in range(3):
+        action = agent.act(obs)
+        assert action.shape == (ctx.batch_size,) and action.dtype == torch.int64
+        assert torch.equal(action, uncached.act(obs))
+        obs = torch.rand_like(obs) * 9
+    with pytest.raises(ValueError, match="behavior trajectory"):
+        agent.reset(TrajectoryPreferenceContext(ctx.states_a, ctx.actions_a, ctx.states_b, ctx.actions_b,
+                                                ctx.preferred))
+    with pytest.raises(ValueError, match="takes a TrajectoryPreferenceContext"):
+        agent.reset(agent.labeled_context)
+
+
+def test_dp2t_and_dit_checkpoints_deploy_on_their_contexts(tprl, tprl_rewards, tmp_path):
+    for model, dm in ((DP2TModule(**ENV, **SIZES, context_kind="trajectory_preference"), tprl),
+                      (DITModule(**ENV, **SIZES, value_epochs=0), tprl_rewards)):
+        agent = load_agent(_fit_and_save(model, dm, tmp_path / "m.ckpt"), seed=0)
+        ctx = dm.evaluation_suites()[2].context
+        agent.reset(ctx)
+        assert agent.act(ctx.states[:, 0]).shape == (ctx.batch_size,)
+
+
+def test_rewardgen_checkpoint_is_not_an_agent(reward_gen_ckpt):
+    with pytest.raises(TypeError, match="deploy that checkpoint"):
+        load_agent(reward_gen_ckpt)
+
+
+# ---- configs -----------------------------------------------------------------------------------------
+
+def _tiny_cli(config: str, root, *extra: str):
+    args = ["fit", "--config", str(REPO / config), "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
+            "--data.init_args.root_dir", str(root), "--data.init_args.progress", "false",
+            *(x for k, v in TPRL_TINY.items() if k not in ("progress", "batch_size")
+              for x in (f"--data.init_args.{k}", str(v))),
+            *(x for k, v in SIZES.items() for x in (f"--model.init_args.{k}", str(v))), *extra]
+    return run_cli(args)
+
+
+@pytest.mark.parametrize("config", ["configs/dp2t_darkroom_tprl.yaml", "configs/reward_gen_darkroom.yaml",
+                                    "configs/dit_darkroom.yaml"])
+def test_config_runs_under_fast_dev_run(config, data_root, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    cli = _tiny_cli(config, data_root)
+    assert cli.trainer.state.finished
+    assert cli.model.hparams.max_context == cli.datamodule.context_length
+    if "reward_gen" in config:
+        assert 0.0 <= cli.trainer.callback_metrics["val/darkroom/heldout_pair_accuracy"] <= 1.0
+
+
+def test_icrg_config_runs_under_fast_dev_run(data_root, reward_gen_ckpt, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    cli = _tiny_cli("configs/icrg_darkroom.yaml", data_root, "--model.init_args.reward_gen_checkpoint",
+                    str(reward_gen_ckpt))
+    assert cli.trainer.state.finished
+    assert cli.model.hparams.reward_gen_hparams["n_embd"] == SIZES["n_embd"]
+
+
+def test_paper_configs_have_the_paper_architecture():
+    import yaml
+
+    for name in ("dp2t", "reward_gen", "icrg", "dit"):
+        cfg = yaml.safe_load((REPO / f"configs/paper/{name}_darkroom_tprl.yaml").read_text())
+        args = cfg["model"]["init_args"]
+        assert (args["n_layer"], args["n_embd"], args["n_head"]) == (4, 32, 4), name
+        assert cfg["data"]["init_args"]["trajectories_per_task"] == 5000 and args["lr"] == 3e-4
+
+
+# ---- learning ----------------------------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_rewardgen_beats_chance_on_heldout_pairs(tmp_path):
+    """A few hundred steps suffice for R_ψ to order unseen goals' pairs better than a coin (chance 0.5)."""
+    from icprl_lightning.callbacks.pair_accuracy import HeldOutPairAccuracyCallback
+
+    L.seed_everything(0)
+    dm = DarkRoomTPRLDataModule(root_dir=str(tmp_path), trajectories_per_task=30, val_trajectories_per_task=2,
+                                eval_contexts_per_task=4, calibration_episodes=5, progress=False, batch_size=32,
+                                pairs=True)
+    callback = HeldOutPairAccuracyCallback()
+    trainer = L.Trainer(max_epochs=3, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False, callbacks=[callback], num_sanity_val_steps=0)
+    trainer.fit(RewardGenModule(**ENV, n_layer=2, n_embd=32, n_head=4, lr=1e-3), datamodule=dm)
+    accuracy = callback.last_results["val/darkroom/heldout_pair_accuracy"]
+    assert accuracy > 0.65, callback.last_results  # 240 held-out pairs: chance ± 4 sd is 0.5 ± 0.13
