@@ -30,7 +30,6 @@ actions as ``predict(deterministic=True)`` at one network call per evaluation in
 from __future__ import annotations
 
 import argparse
-import platform
 import sys
 import time
 from collections.abc import Sequence
@@ -42,7 +41,7 @@ import stable_baselines3
 import torch
 from stable_baselines3 import DQN
 
-from icprl_lightning.baselines.sb3_common import Act, summarize_over_goals, train_from_scratch, write_json_atomic
+from icprl_lightning.baselines.sb3_common import Act, from_scratch_record, train_from_scratch, write_json_atomic
 from icprl_lightning.envs.darkroom import N_ACTIONS, DarkRoomFamily
 from icprl_lightning.envs.darkroom_gym import DarkRoomGoalEnv
 from icprl_lightning.oracles.darkroom import optimal_actions
@@ -108,11 +107,7 @@ def run(family: DarkRoomFamily, goals: np.ndarray, seeds: Sequence[int], episode
             "horizon": family.horizon, "episodes_per_goal": episodes, "paper_episodes_per_goal": PAPER_EPISODES,
             "seeds": list(seeds), "eval_every_episodes": eval_every, "eval_episodes": eval_episodes,
             "test_episodes": test_episodes,
-            "selection": "best checkpoint by mean evaluation return (fixed-seed episodes), reported on fresh episodes",
-            **summarize_over_goals(per_goal, keys), "n_goals": len(per_goal), "per_goal": per_goal,
-            "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu_start,
-            "platform": platform.platform(),
-            "torch_threads": torch.get_num_threads()}
+            **from_scratch_record(per_goal, keys, start, cpu_start)}
 
 
 def main(args: Sequence[str] | None = None) -> Path:

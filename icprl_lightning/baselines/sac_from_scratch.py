@@ -24,7 +24,6 @@ and pass ``--episodes 1000`` for the paper's budget.
 from __future__ import annotations
 
 import argparse
-import platform
 import sys
 import time
 from collections.abc import Sequence
@@ -36,7 +35,7 @@ import stable_baselines3
 import torch
 from stable_baselines3 import SAC
 
-from icprl_lightning.baselines.sb3_common import Act, summarize_over_goals, train_from_scratch, write_json_atomic
+from icprl_lightning.baselines.sb3_common import Act, from_scratch_record, train_from_scratch, write_json_atomic
 from icprl_lightning.envs.metaworld_reach import ACTION_DIM, HORIZON, ReachTaskFamily
 from icprl_lightning.envs.reach_gym import ReachGoalEnv
 from icprl_lightning.oracles.metaworld_reach import expert_actions, normalized_return
@@ -86,10 +85,7 @@ def run(goals: np.ndarray, seeds: Sequence[int], episodes: int, horizon: int = H
             "env": "metaworld reach-v3, latent reward -||tcp - goal||", "horizon": horizon,
             "episodes_per_goal": episodes, "paper_episodes_per_goal": PAPER_EPISODES, "seeds": list(seeds),
             "eval_every_episodes": eval_every, "eval_episodes": eval_episodes, "test_episodes": test_episodes,
-            "selection": "best checkpoint by mean evaluation return (fixed-seed episodes), reported on fresh episodes",
-            **summarize_over_goals(per_goal, keys), "n_goals": len(per_goal), "per_goal": per_goal,
-            "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu_start,
-            "platform": platform.platform(), "torch_threads": torch.get_num_threads()}
+            **from_scratch_record(per_goal, keys, start, cpu_start)}
 
 
 def main(args: Sequence[str] | None = None) -> Path:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import copy
 import json
 import os
+import platform
 import time
 import uuid
 from collections.abc import Callable, Mapping, Sequence
@@ -23,6 +24,7 @@ from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
+import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
@@ -195,3 +197,12 @@ def summarize_over_goals(per_goal: Sequence[Mapping[str, Any]], keys: Sequence[s
         mean, sem = mean_sem(np.array([g[key] for g in per_goal], dtype=np.float64))
         out[key] = {"mean": mean, "sem": sem}
     return out
+
+
+def from_scratch_record(per_goal: Sequence[Mapping[str, Any]], keys: Sequence[str], wall_start: float,
+                        cpu_start: float) -> dict[str, Any]:
+    """The part of a from-scratch baseline's JSON every algorithm shares: protocol, summary, cost, machine."""
+    return {"selection": "best checkpoint by mean evaluation return (fixed-seed episodes), reported on fresh episodes",
+            **summarize_over_goals(per_goal, keys), "n_goals": len(per_goal), "per_goal": list(per_goal),
+            "wall_seconds": time.perf_counter() - wall_start, "cpu_seconds": time.process_time() - cpu_start,
+            "platform": platform.platform(), "torch_threads": torch.get_num_threads()}

@@ -97,14 +97,6 @@ class DuelingBanditDataModule(InContextDataModule):
     def action_spec(self) -> ActionSpec:
         return ActionSpec(discrete=True, size=self.family.n_arms)
 
-    @property
-    def context_length(self) -> int:
-        return self.family.horizon
-
-    @property
-    def trajectories_per_task(self) -> tuple[int, int]:
-        return self.per_task
-
     def generator_config(self) -> dict[str, Any]:
         f = self.family
         return {"family": "dueling_bandit", "context_kind": "step_preference", "n_arms": f.n_arms, "dim": f.dim,

@@ -77,14 +77,6 @@ class DarkRoomDataModule(InContextDataModule):
     def action_spec(self) -> ActionSpec:
         return ActionSpec(discrete=True, size=N_ACTIONS)
 
-    @property
-    def context_length(self) -> int:
-        return self.family.horizon
-
-    @property
-    def trajectories_per_task(self) -> tuple[int, int]:
-        return self.per_task
-
     def generator_config(self) -> dict[str, Any]:
         f = self.family
         return {"family": "darkroom", "context_kind": self.kind, "size": f.size, "horizon": f.horizon,
@@ -102,13 +94,19 @@ class DarkRoomDataModule(InContextDataModule):
 
     def _split(self, goals: np.ndarray, n_per_task: int, p_by_quality: np.ndarray, rng: np.random.Generator,
                description: str, quality: int | None = None) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-        task_index = np.repeat(np.arange(len(goals)), n_per_task).astype(np.int32)
-        qual = (np.tile(np.arange(n_per_task) % 3, len(goals)) if quality is None
-                else np.full(len(task_index), quality)).astype(np.int8)
+        task_index, qual = self._task_rows(len(goals), n_per_task, quality)
         arrays, stats = self._contexts(goals[task_index], p_by_quality[qual], rng, description)
         arrays.update(query_labels(self.family, goals[task_index], rng))
         arrays.update(task_index=task_index, quality=qual)
         return arrays, stats
+
+    @staticmethod
+    def _task_rows(n_tasks: int, n_per_task: int, quality: int | None) -> tuple[np.ndarray, np.ndarray]:
+        """Task-major rows: the task of each row, and its quality (row j of a task cycles j mod 3)."""
+        task_index = np.repeat(np.arange(n_tasks), n_per_task).astype(np.int32)
+        qual = (np.tile(np.arange(n_per_task) % 3, n_tasks) if quality is None
+                else np.full(len(task_index), quality)).astype(np.int8)
+        return task_index, qual
 
     def generate(self) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
         rng = np.random.default_rng(self.seed)
@@ -120,15 +118,18 @@ class DarkRoomDataModule(InContextDataModule):
         splits["train"], train_stats = self._split(train_goals, self.per_task[0], p, rng, "train contexts")
         splits["val"], _ = self._split(train_goals, self.per_task[1], p, rng, "val contexts")
         reference: dict[str, dict[str, float]] = {}
+        eval_stats: dict[str, dict[str, float]] = {}
         for qi, q in enumerate(QUALITIES):
-            splits[f"eval_{q}"], _ = self._split(test_goals, self.eval_per_task, p, rng, f"eval {q}", quality=qi)
+            splits[f"eval_{q}"], eval_stats[q] = self._split(test_goals, self.eval_per_task, p, rng, f"eval {q}",
+                                                             quality=qi)
             goals = np.repeat(test_goals, self.calibration_episodes, axis=0)
             ret, opt = rollout_returns(self.family, goals, np.full(len(goals), p[qi]), rng)
             tasks = np.repeat(np.arange(len(test_goals)), self.calibration_episodes)
             b_mean, b_sem = mean_sem(per_task_mean(ret, tasks))
             o_mean, _ = mean_sem(per_task_mean(opt, tasks))
             reference[q] = {"behavior_return": b_mean, "behavior_return_sem": b_sem, "optimal_return": o_mean}
-        info = {"calibration": calibration, "train_statistics": train_stats, "test_reference": reference}
+        info = {"calibration": calibration, "train_statistics": train_stats, "eval_statistics": eval_stats,
+                "test_reference": reference}
         return splits, info
 
     def eval_context(self, arrays: dict[str, Any]):

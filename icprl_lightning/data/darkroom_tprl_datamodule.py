@@ -28,46 +28,15 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import BatchSampler, DataLoader, RandomSampler, SequentialSampler
 
 from icprl_lightning.data.contexts import RewardTrajectoryContext
 from icprl_lightning.data.darkroom import query_labels
 from icprl_lightning.data.darkroom_datamodule import DarkRoomDataModule
 from icprl_lightning.data.darkroom_tprl import PAIR_FIELDS, generate_trajectory_preferences
-from icprl_lightning.data.datamodule import ContextBatches, to_tensor
-from icprl_lightning.evaluation import mean_sem, per_task_mean
-from icprl_lightning.oracles.darkroom import QUALITIES, calibrate_mixing, rollout_returns
+from icprl_lightning.data.datamodule import other_rows, to_tensor
+from icprl_lightning.oracles.darkroom import QUALITIES
 
 LABELED_FIELDS = ("states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b")
-
-
-def other_rows(rows: np.ndarray, per_task: int, shift: np.ndarray | int) -> np.ndarray:
-    """Row of the pair ``shift`` places after each row's, within the same task (task-major storage)."""
-    j = rows % per_task
-    return rows - j + (j + shift) % per_task
-
-
-class TrajectoryPairBatches(ContextBatches):
-    """Whole batches of T-PRL pairs; with ``pairs`` also another pair of the same task as ``pair_*``."""
-
-    def __init__(self, arrays: dict[str, np.ndarray], fields: tuple[str, ...], trajectories_per_task: int,
-                 pairs: bool, query_labels: bool) -> None:
-        super().__init__(arrays, fields, trajectories_per_task, pairs=False, query_labels=query_labels)
-        if pairs and trajectories_per_task < 2:
-            raise ValueError("another pair of the same task needs trajectories_per_task >= 2")
-        self.other_pairs = pairs
-
-    def __len__(self) -> int:
-        return len(self.arrays["states_a"])
-
-    def __getitem__(self, index: list[int]) -> dict[str, torch.Tensor]:
-        batch = super().__getitem__(index)
-        if self.other_pairs:
-            idx = np.sort(np.asarray(index))
-            other = other_rows(idx, self.per_task, torch.randint(1, self.per_task, (len(idx),)).numpy())
-            for k in PAIR_FIELDS:
-                batch[f"pair_{k}"] = to_tensor(self.arrays[k][other])
-        return batch
 
 
 class DarkRoomTPRLDataModule(DarkRoomDataModule):
@@ -106,11 +75,15 @@ class DarkRoomTPRLDataModule(DarkRoomDataModule):
     def generator_config(self) -> dict[str, Any]:
         return {**super().generator_config(), "setting": "T-PRL"}
 
-    def _pair_split(self, goals: np.ndarray, n_per_task: int, p_by_quality: np.ndarray, rng: np.random.Generator,
-                    description: str, quality: int | None = None) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-        task_index = np.repeat(np.arange(len(goals)), n_per_task).astype(np.int32)
-        qual = (np.tile(np.arange(n_per_task) % 3, len(goals)) if quality is None
-                else np.full(len(task_index), quality)).astype(np.int8)
+    pair_fields = PAIR_FIELDS  # ``pairs=True`` serves another *pair* of the same task
+
+    def batch_fields(self) -> tuple[str, ...]:
+        return PAIR_FIELDS if self.kind == "trajectory_preference" else LABELED_FIELDS
+
+    def _split(self, goals: np.ndarray, n_per_task: int, p_by_quality: np.ndarray, rng: np.random.Generator,
+               description: str, quality: int | None = None) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        """One T-PRL pair per row; evaluation rows (``quality`` given) also roll out the behavior trajectory."""
+        task_index, qual = self._task_rows(len(goals), n_per_task, quality)
         arrays, rewards, stats = generate_trajectory_preferences(
             self.family, goals[task_index], p_by_quality[qual], self.bt_temperature, rng,
             behavior=quality is not None, progress=self.progress, description=description)
@@ -120,37 +93,6 @@ class DarkRoomTPRLDataModule(DarkRoomDataModule):
         arrays.update(query_labels(self.family, goals[task_index], rng))
         arrays.update(task_index=task_index, quality=qual)
         return arrays, stats
-
-    def generate(self) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
-        rng = np.random.default_rng(self.seed)
-        calibration = calibrate_mixing(self.family, self.quality_targets, self.calibration_episodes,
-                                       seed=int(rng.integers(2**31)))
-        p = np.array([calibration[q]["p_optimal"] for q in QUALITIES])
-        train_goals, test_goals = self.family.train_goals, self.family.test_goals
-        splits: dict[str, dict[str, np.ndarray]] = {"tasks": {"train_goals": train_goals, "test_goals": test_goals}}
-        splits["train"], train_stats = self._pair_split(train_goals, self.per_task[0], p, rng, "train pairs")
-        splits["val"], _ = self._pair_split(train_goals, self.per_task[1], p, rng, "val pairs")
-        reference: dict[str, dict[str, float]] = {}
-        eval_stats: dict[str, dict[str, float]] = {}
-        for qi, q in enumerate(QUALITIES):
-            splits[f"eval_{q}"], eval_stats[q] = self._pair_split(test_goals, self.eval_per_task, p, rng,
-                                                                  f"eval {q}", quality=qi)
-            goals = np.repeat(test_goals, self.calibration_episodes, axis=0)
-            ret, opt = rollout_returns(self.family, goals, np.full(len(goals), p[qi]), rng)
-            tasks = np.repeat(np.arange(len(test_goals)), self.calibration_episodes)
-            b_mean, b_sem = mean_sem(per_task_mean(ret, tasks))
-            o_mean, _ = mean_sem(per_task_mean(opt, tasks))
-            reference[q] = {"behavior_return": b_mean, "behavior_return_sem": b_sem, "optimal_return": o_mean}
-        info = {"calibration": calibration, "train_statistics": train_stats, "eval_statistics": eval_stats,
-                "test_reference": reference}
-        return splits, info
-
-    def _loader(self, split: str, shuffle: bool) -> DataLoader:
-        per_task = self.trajectories_per_task[0 if split == "train" else 1]
-        fields = PAIR_FIELDS if self.kind == "trajectory_preference" else LABELED_FIELDS
-        data = TrajectoryPairBatches(self.load()[split], fields, per_task, self.pairs, self.query_labels)
-        base = RandomSampler(data) if shuffle else SequentialSampler(data)
-        return DataLoader(data, sampler=BatchSampler(base, self.batch_size, drop_last=shuffle), batch_size=None)
 
     def eval_context(self, arrays: dict[str, Any]):
         if self.kind == "reward_trajectory":

@@ -2,7 +2,8 @@
 
 A family's DataModule subclass says how to generate its dataset (``generator_config`` and
 ``generate``), what its contexts look like (``context_kind``, ``state_dim``, ``action_spec``) and how its
-held-out tasks are evaluated (``evaluation_suites``). This base class owns the rest:
+held-out tasks are evaluated (``evaluation_suites``); it sets ``self.family`` (whose ``horizon`` is the
+context length) and ``self.per_task`` (trajectories per task in train and val). This base class owns the rest:
 
 * ``prepare_data()`` generates the dataset when it is missing (atomic write, see ``data/store.py``);
   an existing one made with another config is an error that names the differing keys.
@@ -44,29 +45,37 @@ def to_tensor(x: np.ndarray) -> torch.Tensor:
     return t.long() if not t.is_floating_point() else t
 
 
+def other_rows(rows: np.ndarray, per_task: int, shift: np.ndarray | int) -> np.ndarray:
+    """Row of the trajectory ``shift`` places after each row's, within the same task (task-major storage)."""
+    j = rows % per_task
+    return rows - j + (j + shift) % per_task
+
+
 class ContextBatches(Dataset):
-    """Indexable by a list of row indices; returns a whole batch as a dict of tensors."""
+    """Indexable by a list of row indices; returns a whole batch as a dict of tensors.
+
+    With ``pairs`` the batch also holds ``pair_fields`` of another trajectory of the same task, as ``pair_*``.
+    """
 
     def __init__(self, arrays: dict[str, np.ndarray], context_fields: tuple[str, ...], trajectories_per_task: int,
-                 pairs: bool, query_labels: bool) -> None:
+                 pairs: bool, query_labels: bool, pair_fields: tuple[str, ...] = PAIR_FIELDS) -> None:
         self.arrays = arrays
         self.fields = list(context_fields) + (list(LABEL_FIELDS) if query_labels else [])
         self.per_task = trajectories_per_task
         self.pairs = pairs
+        self.pair_fields = pair_fields
         if pairs and trajectories_per_task < 2:
             raise ValueError("pairs from another trajectory of the same task need trajectories_per_task >= 2")
 
     def __len__(self) -> int:
-        return len(self.arrays["states"])
+        return len(self.arrays[self.fields[0]])
 
     def __getitem__(self, index: list[int]) -> dict[str, torch.Tensor]:
         idx = np.sort(np.asarray(index))  # sorted reads are kinder to memory maps
         batch = {k: to_tensor(self.arrays[k][idx]) for k in self.fields}
         if self.pairs:
-            j = idx % self.per_task
-            shift = torch.randint(1, self.per_task, (len(idx),)).numpy()
-            other = idx - j + (j + shift) % self.per_task
-            for k in PAIR_FIELDS:
+            other = other_rows(idx, self.per_task, torch.randint(1, self.per_task, (len(idx),)).numpy())
+            for k in self.pair_fields:
                 batch[f"pair_{k}"] = to_tensor(self.arrays[k][other])
         return batch
 
@@ -75,6 +84,7 @@ class InContextDataModule(L.LightningDataModule):
     """Base DataModule: see the module docstring. Subclasses define the family-specific parts."""
 
     family_name: str = "family"
+    pair_fields: tuple[str, ...] = PAIR_FIELDS  # what ``pairs=True`` serves from another trajectory of the task
 
     def __init__(self, data_dir: str | None = None, root_dir: str = "data", batch_size: int = 32,
                  pairs: bool = False, query_labels: bool = False, overwrite: bool = False,
@@ -104,9 +114,9 @@ class InContextDataModule(L.LightningDataModule):
     def action_spec(self) -> ActionSpec: ...
 
     @property
-    @abstractmethod
     def context_length(self) -> int:
-        """Transitions per context (the model's ``max_context``)."""
+        """Transitions per context (the model's ``max_context``): the family's horizon."""
+        return self.family.horizon
 
     @abstractmethod
     def generator_config(self) -> dict[str, Any]:
@@ -121,9 +131,13 @@ class InContextDataModule(L.LightningDataModule):
         """The held-out-task evaluations the rollout callback runs (one per context quality)."""
 
     @property
-    @abstractmethod
     def trajectories_per_task(self) -> tuple[int, int]:
         """Trajectories per task in the (train, val) splits."""
+        return self.per_task
+
+    def batch_fields(self) -> tuple[str, ...]:
+        """The stored fields a training sample serves (besides query labels and pairs)."""
+        return context_fields(self.context_kind)
 
     # ---- shared ------------------------------------------------------------------------------------
     @property
@@ -157,8 +171,8 @@ class InContextDataModule(L.LightningDataModule):
 
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         per_task = self.trajectories_per_task[0 if split == "train" else 1]
-        data = ContextBatches(self.load()[split], context_fields(self.context_kind), per_task,
-                              self.pairs, self.query_labels)
+        data = ContextBatches(self.load()[split], self.batch_fields(), per_task, self.pairs, self.query_labels,
+                              self.pair_fields)
         base = RandomSampler(data) if shuffle else SequentialSampler(data)
         return DataLoader(data, sampler=BatchSampler(base, self.batch_size, drop_last=shuffle), batch_size=None)
 

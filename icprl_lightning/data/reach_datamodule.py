@@ -97,14 +97,6 @@ class ReachDataModule(InContextDataModule):
     def action_spec(self) -> ActionSpec:
         return ActionSpec(discrete=False, size=ACTION_DIM)
 
-    @property
-    def context_length(self) -> int:
-        return self.family.horizon
-
-    @property
-    def trajectories_per_task(self) -> tuple[int, int]:
-        return self.per_task
-
     def generator_config(self) -> dict[str, Any]:
         f = self.family
         return {"family": "metaworld_reach", "env": "reach-v3", "expert": "tcp", "context_kind": self.kind,

@@ -38,11 +38,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shutil
 import sys
 import time
-import uuid
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -53,6 +50,7 @@ import torch
 from stable_baselines3 import SAC
 
 from icprl_lightning.baselines.sb3_common import Act, EvalCheckpointCallback, EvalRecord, jsonable, run_episodes
+from icprl_lightning.data.store import staged_directory
 from icprl_lightning.envs.metaworld_reach import ACTION_DIM, HORIZON, ReachTaskFamily
 from icprl_lightning.envs.reach_gym import ReachGoalEnv
 from icprl_lightning.oracles.metaworld_reach import QUALITY_TARGETS, expert_actions
@@ -112,9 +110,7 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
     goals = np.asarray(goals, dtype=np.float64).reshape(-1, 3)
     every = checkpoint_every or max(1, timesteps // 20)
     model_seed, eval_seed, noise_seed, ref_seed = (int(s) for s in np.random.SeedSequence(seed).generate_state(4))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    try:
+    with staged_directory(out) as tmp:
         eval_env = ReachGoalEnv(goals, horizon=horizon, goal_visible=True)
         options = [{"goal_index": i % len(goals)} for i in range(eval_episodes)]
         callback = EvalCheckpointCallback(eval_env, every, eval_episodes, eval_seed, stochastic_act(noise_seed),
@@ -145,16 +141,6 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
             "train_seconds": seconds, **(extra or {})}
         with open(tmp / SUMMARY, "w") as f:
             json.dump(jsonable(summary), f, indent=2)
-        if out.exists():
-            trash = out.parent / f".{out.name}.old-{uuid.uuid4().hex[:8]}"
-            os.rename(out, trash)
-            os.rename(tmp, out)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.rename(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out
 
 
