@@ -25,12 +25,27 @@ from torch import Tensor, nn
 
 @dataclass
 class KVCache:
-    keys: list[Tensor]    # per layer (B, nh, T, hs)
-    values: list[Tensor]  # per layer (B, nh, T, hs)
+    """Each layer's context keys and values, in buffers with spare slots for the query tokens.
 
-    @property
-    def length(self) -> int:
-        return self.keys[0].shape[2]
+    Slots [0, length) hold the context; a query writes its own key and value into the slots after it in
+    place, so an act() never copies the cache (a torch.cat per layer per step did, and was the largest
+    cost of deployment with a small model).
+    """
+
+    keys: list[Tensor]    # per layer (B, nh, T + slots, hs)
+    values: list[Tensor]  # per layer (B, nh, T + slots, hs)
+    length: int           # T, the context tokens
+
+    def reserve(self, n_queries: int) -> None:
+        """Make room for ``n_queries`` query slots after the context (copies the cache only when it grows)."""
+        if self.keys[0].shape[2] - self.length >= n_queries:
+            return
+        for i, (k, v) in enumerate(zip(self.keys, self.values, strict=True)):
+            shape = (*k.shape[:2], self.length + n_queries, k.shape[3])
+            self.keys[i] = k.new_empty(shape)
+            self.values[i] = v.new_empty(shape)
+            self.keys[i][:, :, : self.length] = k[:, :, : self.length]
+            self.values[i][:, :, : self.length] = v[:, :, : self.length]
 
 
 class SelfAttention(nn.Module):
@@ -43,13 +58,17 @@ class SelfAttention(nn.Module):
         self.dropout = dropout
         self.resid_drop = nn.Dropout(dropout)
 
-    def forward(self, x: Tensor, mask: Tensor, past: tuple[Tensor, Tensor] | None = None
+    def forward(self, x: Tensor, mask: Tensor, past: tuple[Tensor, Tensor] | None = None, past_length: int = 0
                 ) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+        """With ``past`` (cache buffers), x's keys/values go into the slots after ``past_length`` in place."""
         b, t, c = x.shape
         q, k, v = self.qkv(x).split(c, dim=2)
         q, k, v = (z.view(b, t, self.n_head, c // self.n_head).transpose(1, 2) for z in (q, k, v))  # (B, nh, t, hs)
         if past is not None:
-            k, v = torch.cat([past[0], k], dim=2), torch.cat([past[1], v], dim=2)
+            end = past_length + t
+            past[0][:, :, past_length:end] = k
+            past[1][:, :, past_length:end] = v
+            k, v = past[0][:, :, :end], past[1][:, :, :end]
         y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask,
                                            dropout_p=self.dropout if self.training else 0.0)
         y = y.transpose(1, 2).contiguous().view(b, t, c)
@@ -65,9 +84,9 @@ class Block(nn.Module):
         self.mlp = nn.Sequential(nn.Linear(n_embd, 4 * n_embd), nn.GELU(), nn.Linear(4 * n_embd, n_embd),
                                  nn.Dropout(dropout))
 
-    def forward(self, x: Tensor, mask: Tensor, past: tuple[Tensor, Tensor] | None = None
+    def forward(self, x: Tensor, mask: Tensor, past: tuple[Tensor, Tensor] | None = None, past_length: int = 0
                 ) -> tuple[Tensor, tuple[Tensor, Tensor]]:
-        a, kv = self.attn(self.ln1(x), mask, past)
+        a, kv = self.attn(self.ln1(x), mask, past, past_length)
         x = x + a
         return x + self.mlp(self.ln2(x)), kv
 
@@ -130,14 +149,17 @@ class CausalTransformer(nn.Module):
             x, (k, v) = block(x, mask)
             keys.append(k)
             values.append(v)
-        return KVCache(keys, values)
+        cache = KVCache(keys, values, t)
+        cache.reserve(1)  # one act() = one query token
+        return cache
 
     def query(self, cache: KVCache, queries: Tensor) -> Tensor:
         """Queries (B, Q, D) that each see the whole cached context and themselves -> (B, Q, D)."""
         t, q = cache.length, queries.shape[1]
+        cache.reserve(q)
         x = self.drop(queries + self.pos(torch.full((q,), t, device=queries.device)))
         mask = torch.cat([torch.ones(q, t, dtype=torch.bool, device=queries.device),
                           torch.eye(q, dtype=torch.bool, device=queries.device)], dim=1)
         for block, k, v in zip(self.blocks, cache.keys, cache.values, strict=True):
-            x, _ = block(x, mask, past=(k, v))
+            x, _ = block(x, mask, past=(k, v), past_length=t)
         return self.ln_f(x)
