@@ -1,6 +1,6 @@
 """Deployment rate (env-steps/s) on the 20 held-out DarkRoom tasks, with and without the KV cache.
 
-    python benchmarks/deployment_throughput.py [--episodes-per-task 1] [--seed 0]
+    python benchmarks/deployment_throughput.py [--episodes-per-task 1] [--seed 0] [--threads N]
 
 A full episode (H = 100 steps) for each of 20 held-out goals, through the public Agent API: reset()
 encodes the 100-comparison contexts; each act() runs the query token only (cache) or re-runs the
@@ -41,7 +41,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--episodes-per-task", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch intra-op threads (default: torch's own, = the cores); 1 avoids thread "
+                             "oversubscription on a shared machine")
     args = parser.parse_args()
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
     fam = DarkRoomFamily(seed=args.seed)
     goals = np.repeat(fam.test_goals, args.episodes_per_task, axis=0)
     arrays, _ = generate_step_preferences(fam, goals, np.full(len(goals), 0.5), 1.0, np.random.default_rng(0))

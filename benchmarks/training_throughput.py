@@ -1,6 +1,6 @@
 """Training throughput (samples/s) of the in-context policy: optimizer steps on DarkRoom-shaped batches.
 
-    python benchmarks/training_throughput.py [--steps 20] [--seed 0]
+    python benchmarks/training_throughput.py [--steps 20] [--threads N]
 
 One sample is one context of H = 100 comparisons plus H query states, scored against every context
 prefix 1..H in one pass (the same work per sample as DPT's training, which predicts the query's
@@ -58,7 +58,12 @@ def measure(cls, size: dict, steps: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch intra-op threads (default: torch's own, = the cores); 1 avoids thread "
+                             "oversubscription on a shared machine")
     args = parser.parse_args()
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
     results = {f"{method.__name__}/{name}": round(measure(method, size, args.steps), 1)
                for name, size in SIZES.items() for method in (ICPOModule, DP2TModule)}
     print(json.dumps({"benchmark": "training_samples_per_second", "context_length": 100,

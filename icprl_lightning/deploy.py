@@ -6,9 +6,9 @@
     action = agent.act(obs)                           # obs [B, S] -> [B] (discrete) | [B, A]
 
 ``reset`` encodes the context once into a KV cache; each ``act`` runs only the query token against it
-(paper, "DP²T Deployment" / "ICPO Deployment", with D fixed). Discrete actions are the argmax of
-T_θ(· | s_h, D) by default; ``greedy=False`` samples a_h ~ T_θ(· | s_h, D) as the paper's text writes it.
-Greedy is the default because ICPO's λ < 1 objective leaves probability mass on the non-preferred
+(paper, "DP²T Deployment" / "ICPO Deployment", with D fixed). DPT, DP²T and ICPO act with the argmax
+of T_θ(· | s_h, D) by default (ICRG samples); ``greedy=False`` samples a_h ~ T_θ(· | s_h, D) as the
+paper's text writes it. Greedy is their default because ICPO's λ < 1 objective leaves probability mass on the non-preferred
 actions, so the sampled policy is much noisier than its mode (docs/RESULTS.md reports both).
 Continuous actions are the policy mean. Wrong shapes or dtypes raise ``ValueError`` naming the expected shape.
 """
@@ -83,9 +83,13 @@ class Agent:
         return torch.multinomial(out.softmax(-1), 1, generator=self.generator).squeeze(-1)
 
 
-def load_agent(checkpoint: str | Path, greedy: bool = True, use_cache: bool = True, seed: int | None = None,
+def load_agent(checkpoint: str | Path, greedy: bool | None = None, use_cache: bool = True, seed: int | None = None,
                map_location: str | torch.device = "cpu"):
-    """Load any icprl_lightning method's checkpoint as a deployable agent."""
+    """Load any icprl_lightning method's checkpoint as a deployable agent.
+
+    ``greedy`` None keeps the method's own default (argmax / Gaussian mean for DPT, DP²T and ICPO;
+    sampling for ICRG, whose advantage-weighted policy collapses at its argmax); True or False forces it.
+    """
     path = Path(checkpoint)
     if not path.is_file():
         raise FileNotFoundError(f"No checkpoint at {path}")
@@ -100,4 +104,5 @@ def load_agent(checkpoint: str | Path, greedy: bool = True, use_cache: bool = Tr
     cls = getattr(importlib.import_module(module_name), cls_name)
     module = cls.load_from_checkpoint(path, map_location=map_location, weights_only=False)
     module.eval()
-    return module.make_agent(greedy=greedy, use_cache=use_cache, seed=seed)
+    options = {} if greedy is None else {"greedy": greedy}
+    return module.make_agent(use_cache=use_cache, seed=seed, **options)

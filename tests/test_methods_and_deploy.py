@@ -90,6 +90,7 @@ def test_sampling_is_seeded(icpo_checkpoint):
 def test_bad_inputs_are_clear_errors(icpo_checkpoint, tmp_path):
     path, dm = icpo_checkpoint
     agent = load_agent(path)
+    assert agent.greedy  # ICPO's own default
     ctx = _eval_context(dm)
     with pytest.raises(RuntimeError, match="reset"):
         agent.act(torch.zeros(ctx.batch_size, 2))

@@ -194,6 +194,8 @@ def test_icrg_checkpoint_deploys_alone_and_labels_the_behavior_trajectory(tprl, 
     finally:
         moved_away.rename(reward_gen_ckpt)
     assert isinstance(agent, ICRGAgent)
+    assert agent.policy_agent.greedy
+    assert not load_agent(path).policy_agent.greedy  # ICRG's own default: sample from T^R
     ctx = next(s for s in tprl.evaluation_suites() if s.quality == "low").context
     agent.reset(ctx)
     uncached.reset(ctx)
