@@ -23,9 +23,15 @@ from icprl_lightning.data.datamodule import InContextDataModule
 
 
 class SaveConfigToRun(SaveConfigCallback):
-    """Save config.yaml in the run's own directory (``<save_dir>/<project>/<run id>/``), not the shared root."""
+    """Save config.yaml in the run's own directory (``<save_dir>/<project>/<run id>/``), not the shared root.
+
+    Only ``fit`` saves it: ``validate``/``test`` of a checkpoint create no run to save it in, and must not
+    drop a config.yaml into the working directory (nor refuse the second time because one is there).
+    """
 
     def setup(self, trainer, pl_module, stage: str) -> None:
+        if stage != "fit":
+            return
         logger = trainer.logger
         if isinstance(logger, WandbLogger) and trainer.is_global_zero:
             version = logger.version if logger.version is not None else "run"

@@ -8,8 +8,9 @@
 ``reset`` encodes the context once into a KV cache; each ``act`` runs only the query token against it
 (paper, "DP²T Deployment" / "ICPO Deployment", with D fixed). DPT, DP²T and ICPO act with the argmax
 of T_θ(· | s_h, D) by default (ICRG samples); ``greedy=False`` samples a_h ~ T_θ(· | s_h, D) as the
-paper's text writes it. Greedy is their default because ICPO's λ < 1 objective leaves probability mass on the non-preferred
-actions, so the sampled policy is much noisier than its mode (docs/RESULTS.md reports both).
+paper's text writes it. Greedy is their default because ICPO's λ < 1 objective leaves probability mass
+on the non-preferred actions, so the sampled policy is much noisier than its mode (docs/RESULTS.md
+reports both).
 Continuous actions are the policy mean. Wrong shapes or dtypes raise ``ValueError`` naming the expected shape.
 """
 

@@ -56,7 +56,7 @@ def test_print_config_shows_linked_model_and_data():
     assert printed["data"]["init_args"]["bt_temperature"] == 1.0
 
 
-def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, monkeypatch):
+def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     root = tmp_path / "data"
     main(["generate", "--config", f"{_repo()}/configs/icpo_darkroom.yaml", *tiny_data_args(root)])
@@ -70,9 +70,15 @@ def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, mo
     ckpt = cli.trainer.checkpoint_callback.last_model_path
     assert ckpt.endswith("last.ckpt")
     assert "val/darkroom/high/return" in cli.trainer.callback_metrics
-    val = run_cli(["validate", "--config", f"{_repo()}/configs/icpo_darkroom.yaml", "--ckpt_path", ckpt,
-                   "--trainer.logger", "false", *tiny_data_args(root)])
-    assert "val/darkroom/low/return" in val.trainer.callback_metrics
+    capsys.readouterr()
+    for _ in range(2):  # validate writes no config.yaml into the working directory, so it can run again
+        val = run_cli(["validate", "--config", f"{_repo()}/configs/icpo_darkroom.yaml", "--ckpt_path", ckpt,
+                       "--trainer.logger", "false", *tiny_data_args(root)])
+        assert "val/darkroom/low/return" in val.trainer.callback_metrics
+    assert not (tmp_path / "config.yaml").exists()
+    printed = capsys.readouterr().err  # the rollout callback's table, with the behavior policy beside
+    assert "In-context rollouts on held-out tasks" in printed and "behavior return" in printed
+    assert "darkroom/high" in printed
 
 
 def _repo() -> str:

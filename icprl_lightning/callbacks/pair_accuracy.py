@@ -20,7 +20,7 @@ class HeldOutPairAccuracyCallback(L.Callback):
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking:
             return
-        env = trainer.datamodule.family_name
+        env = trainer.datamodule.metric_env
         correct = {}
         for quality, batch in trainer.datamodule.heldout_pairs().items():
             batch = {k: v.to(pl_module.device) for k, v in batch.items()}

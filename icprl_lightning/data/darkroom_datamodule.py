@@ -41,6 +41,7 @@ class DarkRoomDataModule(InContextDataModule):
     """
 
     family_name = "darkroom"
+    metric_env = "darkroom"
     context_kinds: tuple[str, ...] = ("step_preference", "reward")  # T-PRL: DarkRoomTPRLDataModule
 
     def __init__(self, context_kind: str = "step_preference", trajectories_per_task: int = 100,
@@ -147,7 +148,7 @@ class DarkRoomDataModule(InContextDataModule):
             goals = test_goals[np.asarray(split["task_index"])]
             optimal = reference[q]["optimal_return"]
             suites.append(EvalSuite(
-                env_name="darkroom", quality=q, context=self.eval_context(arrays),
+                env_name=self.metric_env, quality=q, context=self.eval_context(arrays),
                 make_env=lambda goals=goals: self.family.make_env(goals),
                 task_index=np.asarray(split["task_index"]), horizon=self.family.horizon,
                 reference=reference[q], normalize=lambda r, optimal=optimal: r / optimal))

@@ -25,13 +25,9 @@ from __future__ import annotations
 import numpy as np
 from rich.progress import track
 
-from icprl_lightning.data.bradley_terry import label_agreement, sample_preferences
+from icprl_lightning.data.tprl import label_trajectory_pairs
 from icprl_lightning.envs.darkroom import DarkRoomFamily
 from icprl_lightning.oracles.darkroom import mixed_actions
-
-PAIR_FIELDS = ("states_a", "actions_a", "states_b", "actions_b", "preferred")
-BEHAVIOR_FIELDS = ("behavior_states", "behavior_actions")
-REWARD_FIELDS = ("rewards_a", "rewards_b", "behavior_rewards")
 
 
 def rollout_mixed_policy(family: DarkRoomFamily, goals: np.ndarray, p_optimal: np.ndarray, rng: np.random.Generator,
@@ -60,23 +56,10 @@ def generate_trajectory_preferences(family: DarkRoomFamily, goals: np.ndarray, p
                                     ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, float]]:
     """One T-PRL context per row of ``goals`` [N, 2] (mixing probability ``p_optimal`` [N]).
 
-    Returns ``(arrays, rewards, stats)``: the reward-free context arrays (``PAIR_FIELDS``, plus
-    ``BEHAVIOR_FIELDS`` when ``behavior``), the per-step latent rewards of each trajectory (oracle only),
-    and the label statistics (agreement with the true return ordering, tie fraction, mean return).
+    Returns ``(arrays, rewards, stats)`` as ``data.tprl.label_trajectory_pairs``: the reward-free context
+    arrays, the per-step latent rewards of each trajectory (oracle only) and the label statistics.
     """
-    n = len(goals)
     k = 3 if behavior else 2
     states, actions, rewards = rollout_mixed_policy(family, np.tile(goals, (k, 1)), np.tile(p_optimal, k), rng,
                                                     progress, description)
-    ret_a, ret_b = rewards[:n].sum(1), rewards[n:2 * n].sum(1)
-    preferred = sample_preferences(ret_a, ret_b, bt_temperature, rng)
-    arrays = {"states_a": states[:n], "actions_a": actions[:n], "states_b": states[n:2 * n],
-              "actions_b": actions[n:2 * n], "preferred": preferred}
-    oracle = {"rewards_a": rewards[:n], "rewards_b": rewards[n:2 * n]}
-    if behavior:
-        arrays.update(behavior_states=states[2 * n:], behavior_actions=actions[2 * n:])
-        oracle["behavior_rewards"] = rewards[2 * n:]
-    stats = {"label_agreement": label_agreement(ret_a, ret_b, preferred),
-             "tie_fraction": float(np.mean(ret_a == ret_b)),
-             "mean_return": float(np.concatenate([ret_a, ret_b]).mean())}
-    return arrays, oracle, stats
+    return label_trajectory_pairs(states, actions, rewards, len(goals), bt_temperature, rng, behavior)

@@ -27,34 +27,21 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import torch
 
-from icprl_lightning.data.contexts import RewardTrajectoryContext
 from icprl_lightning.data.darkroom import query_labels
 from icprl_lightning.data.darkroom_datamodule import DarkRoomDataModule
-from icprl_lightning.data.darkroom_tprl import PAIR_FIELDS, generate_trajectory_preferences
-from icprl_lightning.data.datamodule import other_rows, to_tensor
-from icprl_lightning.oracles.darkroom import QUALITIES
-
-LABELED_FIELDS = ("states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b")
+from icprl_lightning.data.darkroom_tprl import generate_trajectory_preferences
+from icprl_lightning.data.tprl import TrajectoryPreferenceData
 
 
-class DarkRoomTPRLDataModule(DarkRoomDataModule):
+class DarkRoomTPRLDataModule(TrajectoryPreferenceData, DarkRoomDataModule):
     """DarkRoom T-PRL data; see the module docstring.
 
     Args:
-        context_kind: ``trajectory_preference`` (DP²T, RewardGen, ICRG) or ``reward_trajectory`` (DIT
-            on true rewards).
-        trajectories_per_task: T-PRL pairs per training goal (paper: 5000).
-        val_trajectories_per_task: extra pairs per training goal for the validation loss.
-        eval_contexts_per_task: contexts (= evaluation episodes) per held-out goal and quality; RewardGen's
-            held-out pair accuracy scores each against the next one of its goal, so use at least 2.
         bt_temperature: Bradley–Terry temperature on return differences (paper: 1; nearly deterministic
             on DarkRoom's 0–95 returns, see ``data/darkroom_tprl.py``).
-        Other arguments as ``DarkRoomDataModule``.
+        The other T-PRL arguments as ``TrajectoryPreferenceData``, the rest as ``DarkRoomDataModule``.
     """
-
-    context_kinds = ("trajectory_preference", "reward_trajectory")
 
     def __init__(self, context_kind: str = "trajectory_preference", trajectories_per_task: int = 60,
                  val_trajectories_per_task: int = 4, eval_contexts_per_task: int = 5, bt_temperature: float = 1.0,
@@ -75,11 +62,6 @@ class DarkRoomTPRLDataModule(DarkRoomDataModule):
     def generator_config(self) -> dict[str, Any]:
         return {**super().generator_config(), "setting": "T-PRL"}
 
-    pair_fields = PAIR_FIELDS  # ``pairs=True`` serves another *pair* of the same task
-
-    def batch_fields(self) -> tuple[str, ...]:
-        return PAIR_FIELDS if self.kind == "trajectory_preference" else LABELED_FIELDS
-
     def _split(self, goals: np.ndarray, n_per_task: int, p_by_quality: np.ndarray, rng: np.random.Generator,
                description: str, quality: int | None = None) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         """One T-PRL pair per row; evaluation rows (``quality`` given) also roll out the behavior trajectory."""
@@ -87,34 +69,7 @@ class DarkRoomTPRLDataModule(DarkRoomDataModule):
         arrays, rewards, stats = generate_trajectory_preferences(
             self.family, goals[task_index], p_by_quality[qual], self.bt_temperature, rng,
             behavior=quality is not None, progress=self.progress, description=description)
-        if self.kind == "reward_trajectory":
-            arrays.update(rewards)
-            del arrays["preferred"]
+        arrays = self.stored_arrays(arrays, rewards)
         arrays.update(query_labels(self.family, goals[task_index], rng))
         arrays.update(task_index=task_index, quality=qual)
         return arrays, stats
-
-    def eval_context(self, arrays: dict[str, Any]):
-        if self.kind == "reward_trajectory":
-            return RewardTrajectoryContext(arrays["behavior_states"], arrays["behavior_actions"],
-                                           arrays["behavior_rewards"])
-        return super().eval_context(arrays)
-
-    def heldout_pairs(self) -> dict[str, dict[str, torch.Tensor]]:
-        """Per quality, the held-out goals' pairs, each with another pair of its goal as ``pair_*``.
-
-        The context pair is the next evaluation context of the same goal and quality (the pair itself
-        when there is only one per goal). RewardGen's held-out pair accuracy is measured on these.
-        """
-        if self.kind != "trajectory_preference":
-            raise ValueError("held-out pairs exist in trajectory_preference datasets only")
-        data = self.load()
-        out = {}
-        for q in QUALITIES:
-            split = data[f"eval_{q}"]
-            rows = np.arange(len(split["preferred"]))
-            other = other_rows(rows, self.eval_per_task, 1)
-            batch = {k: to_tensor(np.asarray(split[k])) for k in PAIR_FIELDS}
-            batch.update({f"pair_{k}": to_tensor(np.asarray(split[k])[other]) for k in PAIR_FIELDS})
-            out[q] = batch
-        return out

@@ -38,8 +38,12 @@ LABEL_FIELDS = ("query_states", "optimal_actions")
 
 
 def to_tensor(x: np.ndarray) -> torch.Tensor:
-    """Stored compactly, served as the model wants: labels (uint8) as float, indices as int64."""
-    t = torch.from_numpy(np.ascontiguousarray(x))
+    """Stored compactly, served as the model wants: labels (uint8) as float, indices as int64.
+
+    Read-only views of the memory-mapped store are copied: a tensor must never alias the dataset file.
+    """
+    x = np.ascontiguousarray(x)
+    t = torch.from_numpy(x if x.flags.writeable else x.copy())
     if t.dtype == torch.uint8:
         return t.float()
     return t.long() if not t.is_floating_point() else t
@@ -83,7 +87,8 @@ class ContextBatches(Dataset):
 class InContextDataModule(L.LightningDataModule):
     """Base DataModule: see the module docstring. Subclasses define the family-specific parts."""
 
-    family_name: str = "family"
+    family_name: str = "family"  # names the dataset directory
+    metric_env: str = "env"  # names the logged validation metrics: val/<metric_env>/...
     pair_fields: tuple[str, ...] = PAIR_FIELDS  # what ``pairs=True`` serves from another trajectory of the task
 
     def __init__(self, data_dir: str | None = None, root_dir: str = "data", batch_size: int = 32,

@@ -90,26 +90,40 @@ def generate_step_preferences(family: ReachTaskFamily, goals: np.ndarray, p_firs
     return arrays, stats
 
 
-def generate_reward_contexts(family: ReachTaskFamily, goals: np.ndarray, p_expert: np.ndarray,
-                             rng: np.random.Generator, num_workers: int = 2, progress: bool = False,
-                             description: str = "reward contexts") -> tuple[dict[str, np.ndarray], dict[str, float]]:
-    """One rollout (s, a, r, s') of the mixed policy π_p per row of ``goals`` [N, 3] (p [N]); DPT's context."""
+def rollout_mixed_policy(family: ReachTaskFamily, goals: np.ndarray, p_expert: np.ndarray, rng: np.random.Generator,
+                         num_workers: int = 2, progress: bool = False, description: str = "rollouts"
+                         ) -> dict[str, np.ndarray]:
+    """One rollout of the mixed policy π_p per row of ``goals`` [N, 3] (p [N]), all rows of a chunk at once.
+
+    Returns ``states`` [N, H, 39] (s_h before acting, goal zeroed), ``actions`` [N, H, 4], the latent
+    ``rewards`` [N, H], the observation after the last step ``final_states`` [N, 39] and the expert's
+    actions at the visited states ``optimal`` [N, H, 4] (oracle only).
+    """
     n, horizon = len(goals), family.horizon
-    states = np.empty((n, horizon, OBS_DIM), dtype=np.float32)
-    next_states = np.empty((n, horizon, OBS_DIM), dtype=np.float32)
-    actions = np.empty((n, horizon, ACTION_DIM), dtype=np.float32)
-    optimal = np.empty((n, horizon, ACTION_DIM), dtype=np.float32)
-    rewards = np.empty((n, horizon), dtype=np.float32)
+    out = {"states": np.empty((n, horizon, OBS_DIM), dtype=np.float32),
+           "actions": np.empty((n, horizon, ACTION_DIM), dtype=np.float32),
+           "rewards": np.empty((n, horizon), dtype=np.float32),
+           "final_states": np.empty((n, OBS_DIM), dtype=np.float32),
+           "optimal": np.empty((n, horizon, ACTION_DIM), dtype=np.float32)}
     for rows, label in _chunks(n, description):
         with family.make_env(goals[rows], num_workers=num_workers) as env:
             obs, _ = env.reset(seed=int(rng.integers(2**31)))
             for h in _steps(horizon, label, progress):
                 state = env.oracle_state()
                 a = mixed_actions(state, p_expert[rows], rng)
-                nxt, reward, *_ = env.step(a)
-                states[rows, h], actions[rows, h], optimal[rows, h] = obs, a, expert_actions(state)
-                rewards[rows, h], next_states[rows, h] = reward, nxt
-                obs = nxt
-    arrays = {"states": states, "actions": actions, "rewards": rewards, "next_states": next_states}
-    arrays.update(time_permuted_queries(states, optimal, rng))
-    return arrays, {"mean_context_return": float(rewards.sum(1, dtype=np.float64).mean())}
+                out["states"][rows, h], out["actions"][rows, h], out["optimal"][rows, h] = obs, a, expert_actions(state)
+                obs, out["rewards"][rows, h], *_ = env.step(a)
+            out["final_states"][rows] = obs
+    return out
+
+
+def generate_reward_contexts(family: ReachTaskFamily, goals: np.ndarray, p_expert: np.ndarray,
+                             rng: np.random.Generator, num_workers: int = 2, progress: bool = False,
+                             description: str = "reward contexts") -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """One rollout (s, a, r, s') of the mixed policy π_p per row of ``goals`` [N, 3] (p [N]); DPT's context."""
+    roll = rollout_mixed_policy(family, goals, p_expert, rng, num_workers, progress, description)
+    states = roll["states"]
+    arrays = {"states": states, "actions": roll["actions"], "rewards": roll["rewards"],
+              "next_states": np.concatenate([states[:, 1:], roll["final_states"][:, None]], axis=1)}
+    arrays.update(time_permuted_queries(states, roll["optimal"], rng))
+    return arrays, {"mean_context_return": float(roll["rewards"].sum(1, dtype=np.float64).mean())}

@@ -18,7 +18,8 @@ Which policies a context comes from (``quality`` stores the index of the second 
   come from the 20% policy): the pretraining pair with its better side swapped for π_q.
 * Reward contexts: rollouts of one behavior policy; training trajectory j of a task has quality j mod 3.
 
-The manifest also records the label agreement rate and tie fraction of the training labels, and for the
+The manifest also records the label statistics of the training and of each evaluation split (I-PRL: label
+agreement rate and tie fraction; reward contexts: mean context return), and for the
 held-out goals the return and success rate of each behavior policy π_q, of the expert and of the
 uniform policy (``test_reference``; per goal in ``test_reference_per_task``). Normalized return is
 (R − R_uniform) / (R_expert − R_uniform) with the episode's own goal's references.
@@ -59,6 +60,7 @@ class ReachDataModule(InContextDataModule):
     """
 
     family_name = "metaworld_reach"
+    metric_env = "metaworld"
     context_kinds: tuple[str, ...] = ("step_preference", "reward")
 
     def __init__(self, context_kind: str = "step_preference", trajectories_per_task: int = 20,
@@ -145,20 +147,26 @@ class ReachDataModule(InContextDataModule):
                             "uniform_return": mean_sem(uniform)[0]}
         return reference, {"uniform_return": uniform.tolist(), "expert_return": expert.tolist()}
 
+    def calibration_targets(self) -> dict[str, float]:
+        """Normalized returns to calibrate a mixing probability for; ``quality`` indexes them in this order."""
+        return self.quality_targets
+
     def generate(self) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
         rng = np.random.default_rng(self.seed)
-        calibration = calibrate_mixing(self.family, self.quality_targets, self.calibration_episodes,
+        calibration = calibrate_mixing(self.family, self.calibration_targets(), self.calibration_episodes,
                                        seed=int(rng.integers(2**31)), num_workers=self.num_workers)
-        p = np.array([calibration[q]["p_expert"] for q in QUALITIES])
+        p = np.array([c["p_expert"] for c in calibration.values()])
         train_goals, test_goals = self.family.train_goals, self.family.test_goals
         splits: dict[str, dict[str, np.ndarray]] = {"tasks": {"train_goals": train_goals, "test_goals": test_goals}}
         splits["train"], train_stats = self._split(train_goals, self.per_task[0], p, rng, "train contexts")
         splits["val"], _ = self._split(train_goals, self.per_task[1], p, rng, "val contexts")
+        eval_stats: dict[str, dict[str, float]] = {}
         for qi, q in enumerate(QUALITIES):
-            splits[f"eval_{q}"], _ = self._split(test_goals, self.eval_per_task, p, rng, f"eval {q}", quality=qi)
-        reference, per_task = self._references(test_goals, p, int(rng.integers(2**31)))
-        info = {"calibration": calibration, "train_statistics": train_stats, "test_reference": reference,
-                "test_reference_per_task": per_task}
+            splits[f"eval_{q}"], eval_stats[q] = self._split(test_goals, self.eval_per_task, p, rng, f"eval {q}",
+                                                             quality=qi)
+        reference, per_task = self._references(test_goals, p[:len(QUALITIES)], int(rng.integers(2**31)))
+        info = {"calibration": calibration, "train_statistics": train_stats, "eval_statistics": eval_stats,
+                "test_reference": reference, "test_reference_per_task": per_task}
         return splits, info
 
     def eval_context(self, arrays: dict[str, Any]):
@@ -177,7 +185,7 @@ class ReachDataModule(InContextDataModule):
             arrays = {k: to_tensor(np.asarray(v)) for k, v in split.items()}
             tasks = np.asarray(split["task_index"])
             suites.append(EvalSuite(
-                env_name="metaworld", quality=q, context=self.eval_context(arrays),
+                env_name=self.metric_env, quality=q, context=self.eval_context(arrays),
                 make_env=lambda goals=test_goals[tasks]: self.family.make_env(goals, num_workers=self.num_workers),
                 task_index=tasks, horizon=self.family.horizon, reference=info["test_reference"][q],
                 normalize=lambda r, t=tasks: (r - uniform[t]) / (expert[t] - uniform[t])))

@@ -40,7 +40,7 @@ def read_reward_gen(checkpoint: str) -> tuple[dict[str, Any], dict[str, Tensor]]
     expected = f"{RewardGenModule.__module__}.{RewardGenModule.__qualname__}"
     if not isinstance(ckpt, dict) or ckpt.get("icprl_class_path") != expected:
         raise ValueError(f"{checkpoint} is not a RewardGen checkpoint (train one with "
-                         "configs/reward_gen_darkroom.yaml)")
+                         "configs/reward_gen_darkroom.yaml or configs/reward_gen_metaworld.yaml)")
     prefix = "reward."
     weights = {k[len(prefix):]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
     return dict(ckpt["hyper_parameters"]), weights
@@ -67,7 +67,7 @@ class ICRGModule(DITModule):
         if reward_gen_hparams is None:
             if reward_gen_checkpoint is None:
                 raise ValueError("ICRG needs reward_gen_checkpoint: a RewardGenModule checkpoint (stage 1, "
-                                 "configs/reward_gen_darkroom.yaml)")
+                                 "configs/reward_gen_darkroom.yaml or configs/reward_gen_metaworld.yaml)")
             stage1, weights = read_reward_gen(reward_gen_checkpoint)
             for key, mine in (("state_dim", state_dim), ("action_dim", action_dim), ("discrete", discrete)):
                 if stage1[key] != mine:
