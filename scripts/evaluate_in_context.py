@@ -11,11 +11,14 @@ contexts (low / medium / high quality) the checkpoint is deployed on, through ``
 user would. Every seed is one more episode per context (new start state, new action samples). Works
 for any DataModule with ``evaluation_suites()`` (DarkRoom, Meta-World Reach; I-PRL and T-PRL).
 
-Rows added from the dataset's manifest: the behavior policy that produced each context quality and the
-optimal (DarkRoom) or expert (Reach) policy. ``--baseline NAME=JSON`` adds a from-scratch learner's
-result (``baselines/``; it does not depend on the context, so the same value is shown for every
-quality). Writes ``<out>.json`` (all numbers), ``<out>.md`` (mean ± sem over held-out tasks of return,
-and of success rate when the environment reports it) and ``<out>.png``, and prints the JSON.
+Rows added from a dataset's manifest: the behavior policy that produced each context quality and the
+optimal (DarkRoom) or expert (Reach) policy. Runs on different datasets (DPT's reward contexts, the
+I-PRL data) have their own calibrated behavior policies; ``--reference NAME`` picks whose dataset the
+rows come from (default: the first ``--run``), and the outputs name it. ``--baseline NAME=JSON`` adds
+a from-scratch learner's result (``baselines/``; it does not depend on the context, so the same value
+is shown for every quality). Writes ``<out>.json`` (all numbers), ``<out>.md`` (mean ± sem over
+held-out tasks of return, and of success rate when the environment reports it) and ``<out>.png``, and
+prints the JSON.
 """
 
 from __future__ import annotations
@@ -115,7 +118,9 @@ def write_outputs(payload: dict, out: Path) -> None:
         lines += [f"| {name} | " + " | ".join(cell(res[q], metric, digits) for q in QUALITIES) + " |"
                   for name, res in results.items()]
         lines.append("")
-    out.with_suffix(".md").write_text("\n".join(lines))
+    lines.append(f"Behavior and {'optimal' if 'optimal' in results else 'expert'} rows: the dataset of "
+                 f"{payload['reference_rows_from']}. Seeds {payload['seeds']}, actions: {payload['actions']}.")
+    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     shown = [m for m in ("return", "success") if m in metrics]
     fig, axes = plt.subplots(1, len(shown), figsize=(5.5 * len(shown) + 2.5, 3.6), squeeze=False)
     width = 0.8 / len(results)
@@ -141,6 +146,8 @@ def main() -> None:
     actions = parser.add_mutually_exclusive_group()
     actions.add_argument("--sample", action="store_true", help="sample a ~ T(a|s,D) for every method")
     actions.add_argument("--greedy", action="store_true", help="argmax / Gaussian mean for every method")
+    parser.add_argument("--reference", help="NAME of the --run whose dataset gives the behavior and "
+                        "optimal/expert rows (default: the first)")
     parser.add_argument("--title", default="held-out tasks", help="figure title")
     parser.add_argument("--out", required=True, help="output path without extension")
     args = parser.parse_args()
@@ -150,7 +157,10 @@ def main() -> None:
         name, _, rest = spec.partition("=")
         config, _, checkpoint = rest.partition(":")
         results[name] = evaluate(config, checkpoint, args.seeds, greedy)
-    references = reference_rows(next(iter(results.values())))
+    reference = args.reference or next(iter(results))
+    if reference not in results:
+        parser.error(f"--reference {reference!r} names no --run (runs: {', '.join(results)})")
+    references = reference_rows(results[reference])
     for name in results:
         for q in QUALITIES:
             results[name][q].pop("reference")
@@ -162,7 +172,7 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     actions_used = "sampled" if args.sample else "greedy" if args.greedy else "each method's default"
     payload = {"title": args.title, "seeds": args.seeds, "actions": actions_used,
-               "runs": args.run, "baselines": args.baseline, "results": results}
+               "runs": args.run, "baselines": args.baseline, "reference_rows_from": reference, "results": results}
     out.with_suffix(".json").write_text(json.dumps(payload, indent=2))
     write_outputs(payload, out)
     print(json.dumps(payload, indent=2))

@@ -4,10 +4,13 @@ At each validation epoch (the sanity check is skipped) the callback scores the h
 every context quality, each conditioned on another pair of its goal (``heldout_pairs()`` of the T-PRL
 DataModule), and logs ``val/<env>/<quality>/pair_accuracy`` and ``val/<env>/heldout_pair_accuracy`` (all
 qualities). Chance is 0.5; tied returns carry coin-flip labels, so the ceiling is below 1 (the manifest's
-``eval_statistics`` give the label agreement and tie fraction per quality).
+``eval_statistics`` give the label agreement and tie fraction per quality). The same numbers are printed
+once per epoch, so a run shows them in the terminal, not only in the logger.
 """
 
 from __future__ import annotations
+
+import sys
 
 import lightning as L
 import torch
@@ -29,3 +32,8 @@ class HeldOutPairAccuracyCallback(L.Callback):
         results[f"val/{env}/heldout_pair_accuracy"] = float(torch.cat(list(correct.values())).mean())
         self.last_results = results
         pl_module.log_dict(results, on_epoch=True)
+        if trainer.is_global_zero:
+            shown = ", ".join(f"{q} {float(c.mean()):.3f} (n={len(c)})" for q, c in correct.items())
+            all_pairs = results[f"val/{env}/heldout_pair_accuracy"]
+            print(f"Held-out pair accuracy (epoch {trainer.current_epoch + 1}): {shown}; "
+                  f"all {all_pairs:.3f}", file=sys.stderr)
