@@ -7,12 +7,15 @@ reward observed). Returns are averaged per task, then summarized as mean ± stan
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 import torch
+import yaml
 
 
 class VectorEnvLike(Protocol):
@@ -97,3 +100,10 @@ def summarize(suite: EvalSuite, episodes: dict[str, np.ndarray]) -> dict[str, fl
         out["normalized_return"], out["normalized_return_sem"] = mean_sem(per_task_mean(normalized, suite.task_index))
     out.update(suite.reference)
     return out
+
+
+def datamodule_from_config(path: str | Path):
+    """The DataModule a config's ``data`` section names (class_path + init_args), built without the CLI."""
+    data = yaml.safe_load(Path(path).read_text())["data"]
+    module, _, name = data["class_path"].rpartition(".")
+    return getattr(importlib.import_module(module), name)(**data.get("init_args", {}))

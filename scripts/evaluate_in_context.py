@@ -24,28 +24,20 @@ prints the JSON.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 from pathlib import Path
 
 import matplotlib
 import numpy as np
-import yaml
 
 from icprl_lightning import load_agent
-from icprl_lightning.evaluation import mean_sem, per_task_mean, rollout_in_context
+from icprl_lightning.evaluation import datamodule_from_config, mean_sem, per_task_mean, rollout_in_context
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 QUALITIES = ("low", "medium", "high")
 METRICS = ("return", "normalized_return", "success")
-
-
-def datamodule_from_config(path: str):
-    data = yaml.safe_load(Path(path).read_text())["data"]
-    module, _, name = data["class_path"].rpartition(".")
-    return getattr(importlib.import_module(module), name)(**data.get("init_args", {}))
 
 
 def evaluate(config: str, checkpoint: str, seeds: list[int], greedy: bool | None) -> dict[str, dict[str, float]]:

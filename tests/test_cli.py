@@ -1,6 +1,7 @@
 """The icprl command: every DarkRoom config trains under fast_dev_run, overrides, errors, config saving."""
 
 import glob
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -79,6 +80,15 @@ def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, mo
     printed = capsys.readouterr().err  # the rollout callback's table, with the behavior policy beside
     assert "In-context rollouts on held-out tasks" in printed and "behavior return" in printed
     assert "darkroom/high" in printed
+    # the run's saved config + checkpoint deploy through scripts/evaluate_in_context.py
+    out = tmp_path / "table"
+    subprocess.run([sys.executable, f"{_repo()}/scripts/evaluate_in_context.py", "--seeds", "0", "--title", "t",
+                    "--run", f"ICPO={saved[0]}:{ckpt}", "--out", str(out)], check=True, capture_output=True)
+    table = json.loads(out.with_suffix(".json").read_text())
+    assert list(table["results"]) == ["ICPO", "behavior", "optimal"] and table["reference_rows_from"] == "ICPO"
+    reference = val.datamodule.load().manifest["info"]["test_reference"]
+    assert table["results"]["behavior"]["high"]["return"] == pytest.approx(reference["high"]["behavior_return"])
+    assert out.with_suffix(".png").stat().st_size > 0 and "| ICPO |" in out.with_suffix(".md").read_text()
 
 
 def _repo() -> str:
