@@ -11,6 +11,9 @@ contexts (low / medium / high quality) the checkpoint is deployed on, through ``
 user would. Every seed is one more episode per context (new start state, new action samples). Works
 for any DataModule with ``evaluation_suites()`` (DarkRoom, Meta-World Reach; I-PRL and T-PRL).
 
+``--other-task-contexts`` gives each episode a context of another held-out task (same quality): the
+drop in return against the normal run measures how much a policy uses its context.
+
 Rows added from a dataset's manifest: the behavior policy that produced each context quality and the
 optimal (DarkRoom) or expert (Reach) policy. Runs on different datasets (DPT's reward contexts, the
 I-PRL data) have their own calibrated behavior policies; ``--reference NAME`` picks whose dataset the
@@ -25,13 +28,15 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import fields, replace
 from pathlib import Path
 
 import matplotlib
 import numpy as np
+import torch
 
 from icprl_lightning import load_agent
-from icprl_lightning.evaluation import datamodule_from_config, mean_sem, per_task_mean, rollout_in_context
+from icprl_lightning.evaluation import EvalSuite, datamodule_from_config, mean_sem, per_task_mean, rollout_in_context
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -40,12 +45,30 @@ QUALITIES = ("low", "medium", "high")
 METRICS = ("return", "normalized_return", "success")
 
 
-def evaluate(config: str, checkpoint: str, seeds: list[int], greedy: bool | None) -> dict[str, dict[str, float]]:
+def other_task_contexts(suite: EvalSuite) -> EvalSuite:
+    """The suite with each episode given a context of the *next* held-out task (same quality).
+
+    Rows are task-major with the same number of episodes per task, so rolling every context field by that
+    number moves each task's contexts to the following task. A policy that uses its context should lose
+    return; one that ignores it should not.
+    """
+    per_task = int(np.bincount(suite.task_index).max())
+    rolled = {f.name: None if getattr(suite.context, f.name) is None
+              else torch.roll(getattr(suite.context, f.name), per_task, dims=0) for f in fields(suite.context)}
+    if np.any(np.roll(suite.task_index, per_task) == suite.task_index):
+        raise ValueError("other-task contexts need task-major rows with the same count per task")
+    return replace(suite, context=type(suite.context)(**rolled))
+
+
+def evaluate(config: str, checkpoint: str, seeds: list[int], greedy: bool | None,
+             other_task: bool = False) -> dict[str, dict[str, float]]:
     """Per quality: mean and sem over held-out tasks of return, normalized return and success (if reported)."""
     dm = datamodule_from_config(config)
     dm.prepare_data()
     out: dict[str, dict[str, float]] = {}
     for suite in dm.evaluation_suites():
+        if other_task:
+            suite = other_task_contexts(suite)
         episodes: dict[str, list[np.ndarray]] = {}
         for seed in seeds:
             agent = load_agent(checkpoint, greedy=greedy, seed=seed)
@@ -111,7 +134,8 @@ def write_outputs(payload: dict, out: Path) -> None:
                   for name, res in results.items()]
         lines.append("")
     lines.append(f"Behavior and {'optimal' if 'optimal' in results else 'expert'} rows: the dataset of "
-                 f"{payload['reference_rows_from']}. Seeds {payload['seeds']}, actions: {payload['actions']}.")
+                 f"{payload['reference_rows_from']}. Seeds {payload['seeds']}, actions: {payload['actions']}."
+                 + (" Contexts from another held-out task." if payload["other_task_contexts"] else ""))
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     shown = [m for m in ("return", "success") if m in metrics]
     fig, axes = plt.subplots(1, len(shown), figsize=(5.5 * len(shown) + 2.5, 3.6), squeeze=False)
@@ -140,6 +164,8 @@ def main() -> None:
     actions.add_argument("--greedy", action="store_true", help="argmax / Gaussian mean for every method")
     parser.add_argument("--reference", help="NAME of the --run whose dataset gives the behavior and "
                         "optimal/expert rows (default: the first)")
+    parser.add_argument("--other-task-contexts", action="store_true",
+                        help="give each episode a context of another held-out task (does the policy use it?)")
     parser.add_argument("--title", default="held-out tasks", help="figure title")
     parser.add_argument("--out", required=True, help="output path without extension")
     args = parser.parse_args()
@@ -148,7 +174,7 @@ def main() -> None:
     for spec in args.run:
         name, _, rest = spec.partition("=")
         config, _, checkpoint = rest.partition(":")
-        results[name] = evaluate(config, checkpoint, args.seeds, greedy)
+        results[name] = evaluate(config, checkpoint, args.seeds, greedy, args.other_task_contexts)
     reference = args.reference or next(iter(results))
     if reference not in results:
         parser.error(f"--reference {reference!r} names no --run (runs: {', '.join(results)})")
@@ -164,7 +190,8 @@ def main() -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     actions_used = "sampled" if args.sample else "greedy" if args.greedy else "each method's default"
     payload = {"title": args.title, "seeds": args.seeds, "actions": actions_used,
-               "runs": args.run, "baselines": args.baseline, "reference_rows_from": reference, "results": results}
+               "other_task_contexts": args.other_task_contexts, "runs": args.run, "baselines": args.baseline,
+               "reference_rows_from": reference, "results": results}
     out.with_suffix(".json").write_text(json.dumps(payload, indent=2))
     write_outputs(payload, out)
     print(json.dumps(payload, indent=2))

@@ -1,11 +1,13 @@
 """The icprl command: every DarkRoom config trains under fast_dev_run, overrides, errors, config saving."""
 
 import glob
+import importlib.util
 import json
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -89,6 +91,15 @@ def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, mo
     reference = val.datamodule.load().manifest["info"]["test_reference"]
     assert table["results"]["behavior"]["high"]["return"] == pytest.approx(reference["high"]["behavior_return"])
     assert out.with_suffix(".png").stat().st_size > 0 and "| ICPO |" in out.with_suffix(".md").read_text()
+    # --other-task-contexts: every episode keeps its env but gets the contexts of the next held-out task
+    spec = importlib.util.spec_from_file_location("evaluate_in_context", f"{_repo()}/scripts/evaluate_in_context.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    suite = val.datamodule.evaluation_suites()[0]
+    moved = script.other_task_contexts(suite)
+    np.testing.assert_array_equal(moved.task_index, suite.task_index)
+    np.testing.assert_array_equal(moved.context.states.numpy(), np.roll(suite.context.states.numpy(), 1, axis=0))
+    assert not np.array_equal(moved.context.states.numpy(), suite.context.states.numpy())
 
 
 def _repo() -> str:
