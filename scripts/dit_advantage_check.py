@@ -57,7 +57,7 @@ def main() -> None:
         if not np.array_equal(true[k], pref[k]):
             raise ValueError(f"{dit_config} and {icrg_config} do not hold the same trajectories ({k} differs)")
     rows = np.arange(len(pref["preferred"]))
-    other = other_rows(rows, int(len(rows) // len(np.unique(pref["task_index"]))), 1)
+    other = other_rows(rows, preferences.per_task[1], 1)  # the next validation pair of the same goal
     dit_batch = {k: to_tensor(np.asarray(true[k])) for k in (*TRAJECTORY, "rewards_a", "rewards_b")}
     icrg_batch = {k: to_tensor(np.asarray(pref[k])) for k in (*TRAJECTORY, "preferred")}
     icrg_batch.update({f"pair_{k}": to_tensor(np.asarray(pref[k])[other]) for k in (*TRAJECTORY, "preferred")})

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import matplotlib
@@ -53,11 +53,9 @@ def other_task_contexts(suite: EvalSuite) -> EvalSuite:
     return; one that ignores it should not.
     """
     per_task = int(np.bincount(suite.task_index).max())
-    rolled = {f.name: None if getattr(suite.context, f.name) is None
-              else torch.roll(getattr(suite.context, f.name), per_task, dims=0) for f in fields(suite.context)}
     if np.any(np.roll(suite.task_index, per_task) == suite.task_index):
         raise ValueError("other-task contexts need task-major rows with the same count per task")
-    return replace(suite, context=type(suite.context)(**rolled))
+    return replace(suite, context=suite.context.map(lambda x: torch.roll(x, per_task, dims=0)))
 
 
 def evaluate(config: str, checkpoint: str, seeds: list[int], greedy: bool | None,

@@ -62,9 +62,13 @@ def _check_actions(name: str, x: Tensor, b: int, t: int, spec: ActionSpec) -> No
 
 
 class _Context:
+    def map(self, fn):
+        """The same context with ``fn`` applied to every tensor field (absent optional fields stay None)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}  # type: ignore[arg-type]
+        return type(self)(**{k: None if v is None else fn(v) for k, v in values.items()})
+
     def to(self, device: torch.device | str):
-        moved = {f.name: getattr(self, f.name) for f in fields(self)}  # type: ignore[arg-type]
-        return type(self)(**{k: None if v is None else v.to(device) for k, v in moved.items()})
+        return self.map(lambda x: x.to(device))
 
     @property
     def batch_size(self) -> int:

@@ -14,14 +14,14 @@ unlabeled behavior trajectory {s_h, a_h} of the same policy, the one RewardGen l
 deployed (paper, "ICRG Deployment"). Query labels for DP²T: H states drawn without replacement from the
 2H states the pair visited, in random order, with the expert's actions there (float32 [N, H, 4]).
 
-Temperature. Measured on 900 pairs of the calibrated 50% policy (p = 0.174, achieved 54%; 20 pairs on
-each of the 45 training goals, H = 150): returns −22.2 ± 5.9 (range −45.5 … −9.8) and |R_a − R_b| with
-median 4.2 (10th percentile 0.93, 90th 11.3). Two rollouts of one policy on one goal start from the
-same arm pose, but 83% of their actions are uniform noise, so their returns still spread widely. The
-expected agreement of the labels with the return ordering, E σ(|ΔR| / T), is 91.7% at the paper's T = 1
-(one draw of labels: 88.9%), 95.8% at 0.5, 84.4% at 2 and 99% at 0.1. ``DEFAULT_TPRL_BT_TEMPERATURE``
-keeps the paper's 1: the labels carry signal and stay noisy between near-equal returns, as the BT model
-means them to. Returns are continuous, so ties (``tie_fraction``) do not occur (0 of 900).
+Temperature. Two rollouts of one policy on one goal start from the same arm pose, but most of the 50%
+policy's actions are uniform noise (p_expert = 0.140 in the default dataset), so their returns (mean
+−25.3 over 150 steps) differ by several units, far more than the per-step differences of I-PRL.
+``DEFAULT_TPRL_BT_TEMPERATURE`` keeps the paper's 1: the labels carry signal and stay noisy between
+near-equal returns, as the BT model means them to. The manifest of
+``icprl generate --config configs/reward_gen_metaworld.yaml`` reports label agreement 0.918 with the
+true return ordering on the 450 training pairs (``train_statistics``); returns are continuous, so
+``tie_fraction`` is 0.
 
 Rollouts run in ``ReachVectorEnv`` chunks (``data/metaworld_reach.py``): every trajectory of a chunk,
 ξ_a, ξ_b and the behavior trajectory of all rows alike, steps together.
