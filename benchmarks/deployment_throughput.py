@@ -17,7 +17,7 @@ import time
 import numpy as np
 import torch
 
-from icprl_lightning.data.contexts import StepPreferenceContext
+from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.data.darkroom import generate_step_preferences
 from icprl_lightning.envs.darkroom import DarkRoomFamily
 from icprl_lightning.methods.icpo import ICPOModule

@@ -1,6 +1,6 @@
 """icprl_lightning: in-context preference-based reinforcement learning with PyTorch Lightning."""
 
-from icprl_lightning.data.contexts import (
+from icprl_lightning.contexts import (
     RewardContext,
     RewardTrajectoryContext,
     StepPreferenceContext,

@@ -18,32 +18,20 @@ Per-problem regret curves ``[B, H]`` are summarized over problems as mean ± sta
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import fields
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from icprl_lightning.baselines.dts import DoubleThompsonSampling
-from icprl_lightning.data.contexts import StepPreferenceContext
-from icprl_lightning.evaluation import mean_sem
-from icprl_lightning.metrics import weak_regret
+from icprl_lightning.contexts import StepPreferenceContext
+from icprl_lightning.data.suites import BanditSuite
+from icprl_lightning.metrics import mean_sem, weak_regret
 from icprl_lightning.models.policy import InContextPolicy
 
 Duels = tuple[Tensor, Tensor]
 METHODS = ("icpo", "dts", "behavior")
-
-
-@dataclass
-class BanditSuite:
-    """B held-out problems of one context source, with what evaluation alone may see."""
-
-    source: str                       # behaviour policy of the contexts: uniform, dirichlet or dts
-    context: StepPreferenceContext    # states [B, H, 0]; H comparisons per problem
-    expected_rewards: Tensor          # [B, A] r_τ(a), for scoring only
-    behavior_first: Tensor            # [B, H] the behaviour's duel after h comparisons (its duel h + 1)
-    behavior_second: Tensor           # [B, H]
-    dts_alpha: float = 0.51
 
 
 def _rows(context: StepPreferenceContext, part: slice) -> StepPreferenceContext:

@@ -19,8 +19,6 @@ import lightning as L
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 from lightning.pytorch.loggers import WandbLogger
 
-from icprl_lightning.data.datamodule import InContextDataModule
-
 
 class SaveConfigToRun(SaveConfigCallback):
     """Save config.yaml in the run's own directory (``<save_dir>/<project>/<run id>/``), not the shared root.
@@ -54,7 +52,7 @@ class ICPRLCLI(LightningCLI):
 def run_cli(args: list[str], run: bool = True) -> ICPRLCLI:
     """Parse ``args`` as the command line would be (tests call this) and run the subcommand."""
     warnings.filterwarnings("ignore", message=".*args parameter is intended to run from within Python.*")
-    return ICPRLCLI(L.LightningModule, InContextDataModule, subclass_mode_model=True, subclass_mode_data=True,
+    return ICPRLCLI(L.LightningModule, L.LightningDataModule, subclass_mode_model=True, subclass_mode_data=True,
                     save_config_callback=SaveConfigToRun, args=args, run=run,
                     parser_kwargs={"default_env": False})
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from icprl_lightning.data.contexts import CONTEXT_TYPES
+from icprl_lightning.contexts import CONTEXT_TYPES
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.models.transformer import KVCache
 

@@ -8,8 +8,6 @@ reward observed). Returns are averaged per task, then summarized as mean ± stan
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -17,44 +15,14 @@ import numpy as np
 import torch
 import yaml
 
-
-class VectorEnvLike(Protocol):
-    num_envs: int
-
-    def reset(self, *, seed: int | None = None) -> tuple[np.ndarray, dict]: ...
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]: ...
+from icprl_lightning.data.suites import EvalSuite
+from icprl_lightning.metrics import mean_sem, per_task_mean
 
 
 class AgentLike(Protocol):
     def reset(self, context: Any) -> None: ...
 
     def act(self, obs: torch.Tensor) -> torch.Tensor: ...
-
-
-@dataclass
-class EvalSuite:
-    """B held-out episodes with their contexts: one context quality of one task family."""
-
-    env_name: str
-    quality: str
-    context: Any                               # a typed context with batch size B
-    make_env: Callable[[], VectorEnvLike]      # B episodes, aligned with the contexts
-    task_index: np.ndarray                     # [B] which held-out task each episode belongs to
-    horizon: int
-    reference: dict[str, float] = field(default_factory=dict)  # e.g. behavior_return, optimal_return
-    normalize: Callable[[np.ndarray], np.ndarray] | None = None
-
-
-def mean_sem(values: np.ndarray) -> tuple[float, float]:
-    values = np.asarray(values, dtype=np.float64)
-    sem = values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else float("nan")
-    return float(values.mean()), float(sem)
-
-
-def per_task_mean(values: np.ndarray, task_index: np.ndarray) -> np.ndarray:
-    tasks, inverse = np.unique(task_index, return_inverse=True)
-    return np.bincount(inverse, weights=values) / np.bincount(inverse)
 
 
 @torch.no_grad()
@@ -102,8 +70,8 @@ def summarize(suite: EvalSuite, episodes: dict[str, np.ndarray]) -> dict[str, fl
     return out
 
 
-def datamodule_from_config(path: str | Path):
+def datamodule_from_config(path: str | Path, **overrides: Any):
     """The DataModule a config's ``data`` section names (class_path + init_args), built without the CLI."""
     data = yaml.safe_load(Path(path).read_text())["data"]
     module, _, name = data["class_path"].rpartition(".")
-    return getattr(importlib.import_module(module), name)(**data.get("init_args", {}))
+    return getattr(importlib.import_module(module), name)(**{**data.get("init_args", {}), **overrides})

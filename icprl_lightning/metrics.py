@@ -1,4 +1,4 @@
-"""Evaluation metrics as torchmetrics.
+"""Evaluation metrics: weak regret (a torchmetrics ``Metric``) and mean ± standard error over tasks.
 
 Weak regret (paper, appendix "Dueling Bandit Experiments"): for a duel (a, a') in problem τ,
 
@@ -10,6 +10,7 @@ is optimal. ``WeakRegret`` averages it over every duel it sees.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
 from torchmetrics import Metric
@@ -56,3 +57,14 @@ class WeakRegret(Metric):
     def compute(self) -> Tensor:
         # Accumulated in float64 so long evaluations do not drift; reported as float32 like other metrics.
         return (self.total / self.count).float()
+
+
+def mean_sem(values: np.ndarray) -> tuple[float, float]:
+    values = np.asarray(values, dtype=np.float64)
+    sem = values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else float("nan")
+    return float(values.mean()), float(sem)
+
+
+def per_task_mean(values: np.ndarray, task_index: np.ndarray) -> np.ndarray:
+    tasks, inverse = np.unique(task_index, return_inverse=True)
+    return np.bincount(inverse, weights=values) / np.bincount(inverse)

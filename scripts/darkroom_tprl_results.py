@@ -27,8 +27,9 @@ import yaml
 
 from icprl_lightning import load_agent
 from icprl_lightning.data.darkroom_tprl_datamodule import DarkRoomTPRLDataModule
-from icprl_lightning.evaluation import mean_sem, per_task_mean, rollout_in_context
+from icprl_lightning.evaluation import rollout_in_context
 from icprl_lightning.methods.reward_gen import RewardGenModule
+from icprl_lightning.metrics import mean_sem, per_task_mean
 from icprl_lightning.oracles.darkroom import QUALITIES
 
 matplotlib.use("Agg")

@@ -36,7 +36,9 @@ import numpy as np
 import torch
 
 from icprl_lightning import load_agent
-from icprl_lightning.evaluation import EvalSuite, datamodule_from_config, mean_sem, per_task_mean, rollout_in_context
+from icprl_lightning.data.suites import EvalSuite
+from icprl_lightning.evaluation import datamodule_from_config, rollout_in_context
+from icprl_lightning.metrics import mean_sem, per_task_mean
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402

@@ -16,8 +16,8 @@ from icprl_lightning.bandit_evaluation import (
 from icprl_lightning.baselines.dts import DoubleThompsonSampling
 from icprl_lightning.callbacks.bandit_regret import BanditRegretCallback
 from icprl_lightning.cli import run_cli
+from icprl_lightning.contexts import ActionSpec, StepPreferenceContext
 from icprl_lightning.data.bandit_datamodule import EVAL_SOURCES, DuelingBanditDataModule
-from icprl_lightning.data.contexts import ActionSpec, StepPreferenceContext
 from icprl_lightning.deploy import Agent
 from icprl_lightning.models.policy import InContextPolicy
 

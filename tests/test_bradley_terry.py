@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from icprl_lightning.data.bradley_terry import label_agreement, preference_probability, sample_preferences
+from icprl_lightning.preferences import label_agreement, preference_probability, sample_preferences
 
 
 def test_probability_formula_and_temperature():

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from icprl_lightning import StepPreferenceContext, load_agent
-from icprl_lightning.data.contexts import RewardContext
+from icprl_lightning.contexts import RewardContext
 from icprl_lightning.methods.dpt import DP2TModule, DPTModule
 from icprl_lightning.methods.icpo import ICPOModule
 

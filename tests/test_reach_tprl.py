@@ -18,13 +18,13 @@ pytest.importorskip("metaworld")
 
 from icprl_lightning import TrajectoryPreferenceContext, load_agent  # noqa: E402
 from icprl_lightning.cli import run_cli  # noqa: E402
-from icprl_lightning.data.bradley_terry import preference_probability  # noqa: E402
-from icprl_lightning.data.contexts import RewardTrajectoryContext  # noqa: E402
+from icprl_lightning.contexts import RewardTrajectoryContext  # noqa: E402
 from icprl_lightning.data.metaworld_reach_tprl import generate_trajectory_preferences  # noqa: E402
 from icprl_lightning.data.reach_tprl_datamodule import PRETRAINING, ReachTPRLDataModule  # noqa: E402
 from icprl_lightning.data.tprl import label_trajectory_pairs  # noqa: E402
 from icprl_lightning.envs.metaworld_reach import GOAL_SLICE, ReachTaskFamily, latent_reward  # noqa: E402
 from icprl_lightning.oracles.metaworld_reach import expert_actions  # noqa: E402
+from icprl_lightning.preferences import preference_probability  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 H = 10

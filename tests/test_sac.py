@@ -17,12 +17,12 @@ from icprl_lightning.baselines.sb3_common import (
     EvalCheckpointCallback,
     EvalRecord,
     run_episodes,
-    write_json_atomic,
 )
 from icprl_lightning.envs.darkroom import DarkRoomFamily
 from icprl_lightning.envs.darkroom_gym import DarkRoomGoalEnv
 from icprl_lightning.envs.metaworld_reach import latent_reward
 from icprl_lightning.envs.reach_gym import ReachGoalEnv
+from icprl_lightning.io import write_json_atomic
 from icprl_lightning.oracles.sac import SACOracle, calibrate_checkpoints, train_sac_oracle
 
 # Inside reach-v3's goal box (x ∈ [−0.1, 0.1], y ∈ [0.8, 0.9], z ∈ [0.05, 0.3]); no ML1 call (≈7 s) needed.

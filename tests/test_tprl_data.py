@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from icprl_lightning import TrajectoryPreferenceContext
-from icprl_lightning.data.contexts import ActionSpec, context_from_batch
+from icprl_lightning.contexts import ActionSpec, context_from_batch
 from icprl_lightning.data.darkroom_datamodule import DarkRoomDataModule
 from icprl_lightning.data.darkroom_tprl import generate_trajectory_preferences
 from icprl_lightning.data.darkroom_tprl_datamodule import DarkRoomTPRLDataModule

@@ -2,7 +2,7 @@
 
 import torch
 
-from icprl_lightning.data.contexts import ActionSpec, StepPreferenceContext
+from icprl_lightning.contexts import ActionSpec, StepPreferenceContext
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.models.transformer import CausalTransformer, query_mask
 

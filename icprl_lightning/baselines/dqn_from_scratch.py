@@ -41,9 +41,10 @@ import stable_baselines3
 import torch
 from stable_baselines3 import DQN
 
-from icprl_lightning.baselines.sb3_common import Act, from_scratch_record, train_from_scratch, write_json_atomic
+from icprl_lightning.baselines.sb3_common import Act, from_scratch_record, train_from_scratch
 from icprl_lightning.envs.darkroom import N_ACTIONS, DarkRoomFamily
 from icprl_lightning.envs.darkroom_gym import DarkRoomGoalEnv
+from icprl_lightning.io import write_json_atomic
 from icprl_lightning.oracles.darkroom import optimal_actions
 
 PAPER_EPISODES = 1000

@@ -35,9 +35,10 @@ import stable_baselines3
 import torch
 from stable_baselines3 import SAC
 
-from icprl_lightning.baselines.sb3_common import Act, from_scratch_record, train_from_scratch, write_json_atomic
+from icprl_lightning.baselines.sb3_common import Act, from_scratch_record, train_from_scratch
 from icprl_lightning.envs.metaworld_reach import ACTION_DIM, HORIZON, ReachTaskFamily
 from icprl_lightning.envs.reach_gym import ReachGoalEnv
+from icprl_lightning.io import write_json_atomic
 from icprl_lightning.oracles.metaworld_reach import expert_actions, normalized_return
 
 PAPER_EPISODES = 1000

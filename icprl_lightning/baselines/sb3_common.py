@@ -13,11 +13,8 @@ Success of an episode is "the success flag was raised at some step", as in ``eva
 from __future__ import annotations
 
 import copy
-import json
-import os
 import platform
 import time
-import uuid
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -28,7 +25,7 @@ import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
-from icprl_lightning.evaluation import mean_sem
+from icprl_lightning.metrics import mean_sem
 
 Act = Callable[[np.ndarray], np.ndarray]
 
@@ -130,37 +127,6 @@ class EvalCheckpointCallback(BaseCallback):
             raise RuntimeError("no evaluation yet: train with this callback first")
         self.model.policy.load_state_dict(self._best_state)
         return self.history[self.best_index]
-
-
-def jsonable(x: Any) -> Any:
-    """numpy scalars and arrays to Python numbers and lists, recursively."""
-    if isinstance(x, dict):
-        return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
-
-
-def write_json_atomic(path: str | Path, payload: dict[str, Any]) -> Path:
-    """Write ``payload`` as JSON through a temp file in the same directory and an atomic rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    try:
-        with open(tmp, "w") as f:
-            json.dump(jsonable(payload), f, indent=2)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
 
 
 def train_from_scratch(model: BaseAlgorithm, eval_env: gym.Env, total_timesteps: int, eval_every_steps: int,

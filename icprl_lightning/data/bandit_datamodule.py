@@ -31,12 +31,12 @@ import numpy as np
 import torch
 from rich.progress import track
 
-from icprl_lightning.bandit_evaluation import BanditSuite
-from icprl_lightning.data.bradley_terry import label_agreement
-from icprl_lightning.data.contexts import ActionSpec, StepPreferenceContext
-from icprl_lightning.data.datamodule import InContextDataModule, to_tensor
+from icprl_lightning.contexts import ActionSpec, StepPreferenceContext
+from icprl_lightning.data.batches import to_tensor
+from icprl_lightning.data.datamodule import InContextDataModule
+from icprl_lightning.data.suites import BanditSuite, EvalSuite
 from icprl_lightning.envs.dueling_bandit import LinearDuelingBanditFamily
-from icprl_lightning.evaluation import EvalSuite
+from icprl_lightning.preferences import label_agreement
 
 EVAL_SOURCES = ("uniform", "dirichlet", "dts")
 _CHUNK = 10_000  # problems generated per step, bounding memory at paper scale (100k contexts)

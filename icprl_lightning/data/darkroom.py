@@ -19,9 +19,9 @@ from __future__ import annotations
 import numpy as np
 from rich.progress import track
 
-from icprl_lightning.data.bradley_terry import label_agreement, sample_preferences
 from icprl_lightning.envs.darkroom import N_ACTIONS, DarkRoomFamily, step_reward, transition
 from icprl_lightning.oracles.darkroom import mixed_actions, optimal_actions, optimal_advantage
+from icprl_lightning.preferences import label_agreement, sample_preferences
 
 
 def _steps(horizon: int, description: str, progress: bool):

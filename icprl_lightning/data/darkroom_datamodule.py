@@ -18,11 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from icprl_lightning.data.contexts import ActionSpec, context_from_batch
+from icprl_lightning.contexts import ActionSpec, context_from_batch
+from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.darkroom import generate_reward_contexts, generate_step_preferences, query_labels
-from icprl_lightning.data.datamodule import InContextDataModule, to_tensor
+from icprl_lightning.data.datamodule import InContextDataModule
+from icprl_lightning.data.suites import EvalSuite
 from icprl_lightning.envs.darkroom import N_ACTIONS, DarkRoomFamily
-from icprl_lightning.evaluation import EvalSuite, mean_sem, per_task_mean
+from icprl_lightning.metrics import mean_sem, per_task_mean
 from icprl_lightning.oracles.darkroom import QUALITIES, calibrate_mixing, rollout_returns
 
 

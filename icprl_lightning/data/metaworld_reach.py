@@ -25,9 +25,9 @@ from collections.abc import Iterator
 import numpy as np
 from rich.progress import track
 
-from icprl_lightning.data.bradley_terry import label_agreement, sample_preferences
 from icprl_lightning.envs.metaworld_reach import ACTION_DIM, OBS_DIM, ReachTaskFamily
 from icprl_lightning.oracles.metaworld_reach import expert_actions, expert_q_values, mixed_actions
+from icprl_lightning.preferences import label_agreement, sample_preferences
 
 MAX_ENVS = 1024  # episodes simulated at once; bounds memory (≈0.7 MB per env) for paper-sized datasets
 

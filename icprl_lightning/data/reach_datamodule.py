@@ -31,11 +31,13 @@ from typing import Any
 
 import numpy as np
 
-from icprl_lightning.data.contexts import ActionSpec, context_from_batch
-from icprl_lightning.data.datamodule import InContextDataModule, to_tensor
+from icprl_lightning.contexts import ActionSpec, context_from_batch
+from icprl_lightning.data.batches import to_tensor
+from icprl_lightning.data.datamodule import InContextDataModule
 from icprl_lightning.data.metaworld_reach import generate_reward_contexts, generate_step_preferences
+from icprl_lightning.data.suites import EvalSuite
 from icprl_lightning.envs.metaworld_reach import ACTION_DIM, HORIZON, OBS_DIM, ReachTaskFamily
-from icprl_lightning.evaluation import EvalSuite, mean_sem, per_task_mean
+from icprl_lightning.metrics import mean_sem, per_task_mean
 from icprl_lightning.oracles.metaworld_reach import DEFAULT_BT_TEMPERATURE, calibrate_mixing, rollout_returns
 
 QUALITIES = ("low", "medium", "high")

@@ -13,18 +13,16 @@ every failure says what is wrong and how to regenerate.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import shutil
-import uuid
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from icprl_lightning.io import sha256, staged_directory
 
 SCHEMA_VERSION = 1
 MANIFEST = "manifest.json"
@@ -50,46 +48,6 @@ class StoredDataset:
         return self.splits[split]
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 22), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def _jsonable(x: Any) -> Any:
-    """Configs go through JSON so that the manifest compares equal to a freshly built config."""
-    return json.loads(json.dumps(x, default=lambda o: o.item() if hasattr(o, "item") else str(o)))
-
-
-@contextmanager
-def staged_directory(path: str | Path) -> Iterator[Path]:
-    """Yield a hidden sibling directory to fill; on success it replaces ``path`` by rename, on error it is removed.
-
-    Leftovers of an interrupted earlier run (killed before cleanup) are removed first. Nothing ever
-    appears at ``path`` half-written.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    for stale in path.parent.glob(f".{path.name}.tmp-*"):
-        shutil.rmtree(stale, ignore_errors=True)
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    tmp.mkdir()
-    try:
-        yield tmp
-        if path.exists():
-            trash = path.parent / f".{path.name}.old-{uuid.uuid4().hex[:8]}"
-            os.rename(path, trash)
-            os.rename(tmp, path)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.rename(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-
-
 def write_dataset(path: str | Path, splits: Mapping[str, Mapping[str, np.ndarray]], config: Mapping[str, Any],
                   info: Mapping[str, Any] | None = None, overwrite: bool = False) -> Path:
     """Write ``splits`` atomically to ``path``; ``config`` is what generated it (compared on load)."""
@@ -106,16 +64,21 @@ def write_dataset(path: str | Path, splits: Mapping[str, Mapping[str, np.ndarray
                 array = np.ascontiguousarray(array)
                 rel = f"{split}/{name}.npy"
                 np.save(tmp / rel, array)
-                files[rel] = {"sha256": _sha256(tmp / rel), "bytes": (tmp / rel).stat().st_size,
+                files[rel] = {"sha256": sha256(tmp / rel), "bytes": (tmp / rel).stat().st_size,
                               "shape": list(array.shape), "dtype": str(array.dtype)}
                 sizes[split][name] = list(array.shape)
-        manifest = {"schema_version": SCHEMA_VERSION, "config": _jsonable(dict(config)),
-                    "info": _jsonable(dict(info or {})), "sizes": sizes, "files": files}
+        manifest = {"schema_version": SCHEMA_VERSION, "config": _config_json(dict(config)),
+                    "info": _config_json(dict(info or {})), "sizes": sizes, "files": files}
         with open(tmp / MANIFEST, "w") as f:
             json.dump(manifest, f, indent=2, sort_keys=True)
             f.flush()
             os.fsync(f.fileno())
     return path
+
+
+def _config_json(x: Any) -> Any:
+    """Configs go through JSON so that the manifest compares equal to a freshly built config."""
+    return json.loads(json.dumps(x, default=lambda o: o.item() if hasattr(o, "item") else str(o)))
 
 
 def _config_diff(found: Mapping[str, Any], expected: Mapping[str, Any]) -> list[str]:
@@ -141,7 +104,7 @@ def load_dataset(path: str | Path, expected_config: Mapping[str, Any] | None = N
     if version != SCHEMA_VERSION:
         raise DatasetError(f"Dataset {path} has schema version {version}, this code reads {SCHEMA_VERSION}. {fix}")
     if expected_config is not None:
-        diff = _config_diff(manifest.get("config", {}), _jsonable(dict(expected_config)))
+        diff = _config_diff(manifest.get("config", {}), _config_json(dict(expected_config)))
         if diff:
             raise DatasetError(f"Dataset {path} was generated with a different config:\n  "
                                + "\n  ".join(diff) + f"\n{fix}")
@@ -154,7 +117,7 @@ def load_dataset(path: str | Path, expected_config: Mapping[str, Any] | None = N
         if size != meta["bytes"]:
             raise DatasetError(f"Dataset {path}: {rel} is {size} bytes, the manifest says {meta['bytes']} "
                                f"(truncated or overwritten). {fix}")
-        if verify and _sha256(file) != meta["sha256"]:
+        if verify and sha256(file) != meta["sha256"]:
             raise DatasetError(f"Dataset {path}: {rel} fails its SHA-256 checksum (corrupt). {fix}")
         try:
             array = np.load(file, mmap_mode="r")

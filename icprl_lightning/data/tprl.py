@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from icprl_lightning.data.bradley_terry import label_agreement, sample_preferences
-from icprl_lightning.data.contexts import RewardTrajectoryContext
-from icprl_lightning.data.datamodule import other_rows, to_tensor
+from icprl_lightning.contexts import RewardTrajectoryContext
+from icprl_lightning.data.batches import other_rows, to_tensor
+from icprl_lightning.preferences import label_agreement, sample_preferences
 
 PAIR_FIELDS = ("states_a", "actions_a", "states_b", "actions_b", "preferred")
 LABELED_FIELDS = ("states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b")

@@ -30,7 +30,7 @@ from collections.abc import Callable
 import numpy as np
 
 from icprl_lightning.baselines.dts import run_dts
-from icprl_lightning.data.bradley_terry import preference_probability, sample_preferences
+from icprl_lightning.preferences import preference_probability, sample_preferences
 
 Context = dict[str, np.ndarray]
 

@@ -12,7 +12,7 @@ import lightning as L
 import torch
 from torch import Tensor
 
-from icprl_lightning.data.contexts import ActionSpec, context_from_batch
+from icprl_lightning.contexts import ActionSpec, context_from_batch
 from icprl_lightning.models.policy import InContextPolicy
 
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from icprl_lightning.data.contexts import RewardTrajectoryContext
+from icprl_lightning.contexts import RewardTrajectoryContext
 from icprl_lightning.methods.base import InContextModule
 from icprl_lightning.methods.losses import advantage_weighted_loss, dit_value_loss
 from icprl_lightning.models.estimator import InContextEstimator

@@ -21,7 +21,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from icprl_lightning.data.contexts import RewardTrajectoryContext, TrajectoryPreferenceContext, context_from_batch
+from icprl_lightning.contexts import RewardTrajectoryContext, TrajectoryPreferenceContext, context_from_batch
 from icprl_lightning.deploy import Agent
 from icprl_lightning.methods.dit import DITModule
 from icprl_lightning.methods.reward_gen import RewardGenModule

@@ -27,7 +27,7 @@ import lightning as L
 import torch
 from torch import Tensor
 
-from icprl_lightning.data.contexts import ActionSpec, context_from_batch
+from icprl_lightning.contexts import ActionSpec, context_from_batch
 from icprl_lightning.methods.losses import trajectory_preference_loss
 from icprl_lightning.models.estimator import InContextRewardModel
 

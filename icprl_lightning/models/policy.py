@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from torch import Tensor, nn
 
-from icprl_lightning.data.contexts import ActionSpec
+from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.models.tokenizers import TOKENIZERS
 from icprl_lightning.models.transformer import CausalTransformer, KVCache
 

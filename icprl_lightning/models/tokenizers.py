@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from icprl_lightning.data.contexts import (
+from icprl_lightning.contexts import (
     ActionSpec,
     RewardContext,
     RewardTrajectoryContext,

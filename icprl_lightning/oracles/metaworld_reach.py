@@ -59,7 +59,6 @@ import mujoco
 import numpy as np
 from metaworld.envs.sawyer_reach_v3 import SawyerReachEnvV3
 
-from icprl_lightning.data.bradley_terry import label_agreement, sample_preferences
 from icprl_lightning.envs.metaworld_reach import (
     ACTION_DIM,
     GOAL_SLICE,
@@ -68,6 +67,7 @@ from icprl_lightning.envs.metaworld_reach import (
     ReachTaskFamily,
     latent_reward,
 )
+from icprl_lightning.preferences import label_agreement, sample_preferences
 
 QUALITY_TARGETS: Mapping[str, float] = MappingProxyType({"low": 0.2, "medium": 0.4, "high": 0.8})
 METAWORLD_GAIN = 5.0  # SawyerReachV3Policy: move(hand, to=goal, p=5)

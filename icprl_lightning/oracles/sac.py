@@ -49,10 +49,10 @@ import stable_baselines3
 import torch
 from stable_baselines3 import SAC
 
-from icprl_lightning.baselines.sb3_common import Act, EvalCheckpointCallback, EvalRecord, jsonable, run_episodes
-from icprl_lightning.data.store import staged_directory
+from icprl_lightning.baselines.sb3_common import Act, EvalCheckpointCallback, EvalRecord, run_episodes
 from icprl_lightning.envs.metaworld_reach import ACTION_DIM, HORIZON, ReachTaskFamily
 from icprl_lightning.envs.reach_gym import ReachGoalEnv
+from icprl_lightning.io import jsonable, staged_directory
 from icprl_lightning.oracles.metaworld_reach import QUALITY_TARGETS, expert_actions
 
 SUMMARY = "summary.json"
