@@ -2,9 +2,10 @@
 
     python benchmarks/darkroom_generation.py [--trajectories-per-task 1000] [--seed 0]
 
-Prints JSON: labeled steps per second of the vectorized generator (labels, A*, BT sampling and state
-transitions for every trajectory of every task at once), excluding disk writes, plus the time to
-write the dataset to disk through the store.
+Prints JSON: labeled steps per second of the generic I-PRL generator (``StepPreferences`` on
+``DarkRoomFamily``: pair proposals, A*, BT sampling, state transitions and the query labels, for every
+trajectory of every task at once), excluding disk writes, plus the time to write the dataset to disk
+through the store.
 """
 
 from __future__ import annotations
@@ -18,10 +19,10 @@ import time
 
 import numpy as np
 
-from icprl_lightning.data.darkroom import generate_step_preferences, query_labels
+from icprl_lightning.data.settings import StepPreferences
 from icprl_lightning.data.store import write_dataset
-from icprl_lightning.envs.darkroom import DarkRoomFamily
-from icprl_lightning.oracles.darkroom import calibrate_mixing
+from icprl_lightning.families.darkroom import DarkRoomFamily
+from icprl_lightning.families.darkroom.oracle import calibrate_mixing
 
 
 def main() -> None:
@@ -33,16 +34,13 @@ def main() -> None:
     t0 = time.perf_counter()
     cal = calibrate_mixing(fam, {"low": 0.2, "medium": 0.4, "high": 0.8}, seed=args.seed)
     t_cal = time.perf_counter() - t0
-    p = np.array([cal[q]["p_optimal"] for q in ("low", "medium", "high")])
+    p = np.array([cal[q]["mixing"] for q in ("low", "medium", "high")])
     goals = np.repeat(fam.train_goals, args.trajectories_per_task, axis=0)
     quality = np.tile(np.arange(args.trajectories_per_task) % 3, fam.n_train_tasks)
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
-    arrays, stats = generate_step_preferences(fam, goals, p[quality], 1.0, rng)
+    arrays, stats = StepPreferences().contexts(fam, goals, quality, p, rng, False, False, "")
     t_gen = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    arrays.update(query_labels(fam, goals, rng))
-    t_labels = time.perf_counter() - t0
     steps = len(goals) * fam.horizon
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
@@ -53,7 +51,7 @@ def main() -> None:
         "tasks": fam.n_train_tasks, "trajectories_per_task": args.trajectories_per_task, "horizon": fam.horizon,
         "labeled_steps": steps, "generation_seconds": round(t_gen, 3),
         "labeled_steps_per_second": round(steps / t_gen),
-        "query_label_seconds": round(t_labels, 3), "calibration_seconds": round(t_cal, 3),
+        "calibration_seconds": round(t_cal, 3),
         "write_seconds_with_checksums": round(t_write, 3), "label_agreement": round(stats["label_agreement"], 4),
         "cpu_count": os.cpu_count(), "machine": platform.machine(), "seed": args.seed,
     }, indent=2))

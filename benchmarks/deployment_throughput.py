@@ -2,10 +2,10 @@
 
     python benchmarks/deployment_throughput.py [--episodes-per-task 1] [--seed 0] [--threads N]
 
-A full episode (H = 100 steps) for each of 20 held-out goals, through the public Agent API: reset()
-encodes the 100-comparison contexts; each act() runs the query token only (cache) or re-runs the
-whole context plus the query (no cache, what DPT's evaluation does every step). Untrained weights:
-speed does not depend on them. Prints JSON.
+A full episode (H = 100 steps) for each of 20 held-out goals, through the public Agent API: the
+first act() after reset() encodes the 100-comparison contexts; each act() runs the query token only
+(cache) or re-runs the whole context plus the query (no cache, what DPT's evaluation does every step).
+Untrained weights: speed does not depend on them. Prints JSON.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ import numpy as np
 import torch
 
 from icprl_lightning.contexts import StepPreferenceContext
-from icprl_lightning.data.darkroom import generate_step_preferences
-from icprl_lightning.envs.darkroom import DarkRoomFamily
+from icprl_lightning.data.settings import StepPreferences
+from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.methods.icpo import ICPOModule
 
 SIZES = {"default_3L_64d": (3, 64, 4), "dpt_small_4L_32d": (4, 32, 4), "paper_6L_256d": (6, 256, 8)}
@@ -49,7 +49,8 @@ def main() -> None:
         torch.set_num_threads(args.threads)
     fam = DarkRoomFamily(seed=args.seed)
     goals = np.repeat(fam.test_goals, args.episodes_per_task, axis=0)
-    arrays, _ = generate_step_preferences(fam, goals, np.full(len(goals), 0.5), 1.0, np.random.default_rng(0))
+    arrays, _ = StepPreferences().contexts(fam, goals, np.zeros(len(goals), dtype=int), np.array([0.5]),
+                                           np.random.default_rng(0), False, False, "")
     context = StepPreferenceContext(torch.from_numpy(arrays["states"]), torch.from_numpy(arrays["actions"]).long(),
                                     torch.from_numpy(arrays["alt_actions"]).long(),
                                     torch.from_numpy(arrays["preferred"]).float())

@@ -18,7 +18,8 @@ import time
 
 import numpy as np
 
-from icprl_lightning.envs.metaworld_reach import ReachTaskFamily, ReachVectorEnv
+from icprl_lightning.families.metaworld_reach import ReachTaskFamily
+from icprl_lightning.families.metaworld_reach.env import ReachVectorEnv
 
 
 def measure(goals: np.ndarray, num_workers: int, steps: int, seed: int) -> dict[str, float]:

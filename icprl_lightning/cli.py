@@ -1,8 +1,11 @@
-"""The ``icprl`` command: LightningCLI (fit / validate / test / predict) plus ``icprl generate``.
+"""The ``icprl`` command: LightningCLI (fit / validate / test / predict) plus generate, evaluate, import.
 
     icprl fit --config configs/icpo_darkroom.yaml [--model.init_args.lr 1e-3] [--print_config]
+    icprl fit --config configs/icpo_darkroom.yaml --config configs/paper/icpo_darkroom.yaml   # an overlay
     icprl validate --config configs/icpo_darkroom.yaml --ckpt_path runs/.../last.ckpt
     icprl generate --config configs/icpo_darkroom.yaml [--data.init_args.overwrite true]
+    icprl evaluate --run NAME=CONFIG:CKPT [...] --out docs/results/x    (evaluation/command.py)
+    icprl import arrays.npz --out data/mine --kind step_preference --n-actions 5   (data/importer.py)
 
 Model and data are chosen by ``class_path`` / ``init_args`` (subclass mode). The environment sizes are
 written once, by the DataModule, and linked into the model. The resolved config is saved beside the
@@ -63,6 +66,16 @@ def main(args: list[str] | None = None) -> None:
         cli = run_cli(argv[1:], run=False)
         cli.datamodule.prepare_data()
         print(f"dataset ready at {cli.datamodule.path}")
+        return
+    if argv and argv[0] == "evaluate":
+        from icprl_lightning.evaluation.command import main as evaluate_main
+
+        evaluate_main(argv[1:])
+        return
+    if argv and argv[0] == "import":
+        from icprl_lightning.data.importer import main as import_main
+
+        import_main(argv[1:])
         return
     run_cli(argv)
 

@@ -26,11 +26,13 @@ import torch
 import yaml
 
 from icprl_lightning import load_agent
-from icprl_lightning.data.darkroom_tprl_datamodule import DarkRoomTPRLDataModule
+from icprl_lightning.data import PreferenceDataModule
+from icprl_lightning.data.config import datamodule_from_config
+from icprl_lightning.data.settings import RewardTrajectories, TrajectoryPairs
 from icprl_lightning.evaluation import rollout_in_context
+from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.methods.reward_gen import RewardGenModule
 from icprl_lightning.metrics import mean_sem, per_task_mean
-from icprl_lightning.oracles.darkroom import QUALITIES
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -39,17 +41,21 @@ METHODS = {"dp2t": ("DP2T (T-PRL)", "trajectory_preference"), "icrg": ("ICRG", "
            "dit": ("DIT, true rewards (oracle)", "reward_trajectory")}
 
 
-def datamodule(config: Path, kind: str, root_dir: str | None) -> DarkRoomTPRLDataModule:
-    args = yaml.safe_load(config.read_text())["data"]["init_args"]
-    args = {k: v for k, v in args.items() if k not in ("pairs", "query_labels")}
+def datamodule(config: Path, kind: str, root_dir: str | None) -> PreferenceDataModule:
+    """The config's T-PRL data as ``kind``: the same trajectories with labels, or with their true rewards."""
+    overrides = {"progress": False, "pairs": False, "query_labels": False}
     if root_dir is not None:
-        args["root_dir"] = root_dir
-    dm = DarkRoomTPRLDataModule(**{**args, "context_kind": kind, "progress": False})
+        overrides["root_dir"] = root_dir
+    dm = datamodule_from_config(config, **overrides)
+    setting_args = yaml.safe_load(config.read_text())["data"]["init_args"]["setting"].get("init_args", {})
+    setting = {"trajectory_preference": TrajectoryPairs, "reward_trajectory": RewardTrajectories}[kind]
+    dm = PreferenceDataModule(dm.family, setting(**setting_args), **overrides,
+                              **({} if root_dir is not None else {"root_dir": dm.root_dir}))
     dm.prepare_data()
     return dm
 
 
-def evaluate(checkpoint: Path, dm: DarkRoomTPRLDataModule, seeds: list[int], greedy: bool
+def evaluate(checkpoint: Path, dm: PreferenceDataModule, seeds: list[int], greedy: bool
              ) -> dict[str, dict[str, float]]:
     agent = load_agent(checkpoint, greedy=greedy, seed=seeds[0])
     out = {}
@@ -62,14 +68,14 @@ def evaluate(checkpoint: Path, dm: DarkRoomTPRLDataModule, seeds: list[int], gre
 
 
 @torch.no_grad()
-def pair_accuracy(checkpoint: Path, dm: DarkRoomTPRLDataModule) -> dict[str, float]:
+def pair_accuracy(checkpoint: Path, dm: PreferenceDataModule) -> dict[str, float]:
     model = RewardGenModule.load_from_checkpoint(checkpoint, map_location="cpu", weights_only=False).eval()
     correct = {q: model.pair_correct(batch).float() for q, batch in dm.heldout_pairs().items()}
     return {**{q: float(c.mean()) for q, c in correct.items()}, "all": float(torch.cat(list(correct.values())).mean())}
 
 
 @torch.no_grad()
-def label_correlation(checkpoint: Path, dms: dict[str, DarkRoomTPRLDataModule]) -> dict[str, float]:
+def label_correlation(checkpoint: Path, dms: dict[str, PreferenceDataModule]) -> dict[str, float]:
     """Pearson correlation of ICRG's deployment labels r̂ with the latent per-step rewards, per quality."""
     agent = load_agent(checkpoint)
     out = {}

@@ -16,11 +16,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from icprl_lightning.evaluation import datamodule_from_config
+from icprl_lightning.data.config import datamodule_from_config
 
 
 def checksums(config: str, root: str) -> dict[str, str]:
-    dm = datamodule_from_config(config, root_dir=root, progress=False)
+    """``config`` is one file, or a base and its overlays joined by '+' (``base.yaml+paper/x.yaml``)."""
+    dm = datamodule_from_config(*config.split("+"), root_dir=root, progress=False)
     dm.prepare_data()
     manifest = json.loads((dm.path / "manifest.json").read_text())
     return {rel: meta["sha256"] for rel, meta in sorted(manifest["files"].items())}

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from icprl_lightning.data.batches import other_rows, to_tensor
-from icprl_lightning.evaluation import datamodule_from_config
+from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.methods.dit import DITModule, swap_roles
 from icprl_lightning.methods.icrg import ICRGModule
 

@@ -5,10 +5,12 @@ from __future__ import annotations
 import os
 
 import pytest
+from factories import darkroom_data  # noqa: E402
+
+from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 
-from icprl_lightning.data.darkroom_datamodule import DarkRoomDataModule  # noqa: E402
 
 TINY = dict(trajectories_per_task=6, val_trajectories_per_task=2, eval_contexts_per_task=1,
             calibration_episodes=4, n_train_tasks=80, n_test_tasks=20, progress=False, batch_size=8)
@@ -25,15 +27,15 @@ def data_root(tmp_path_factory) -> str:
 
 
 @pytest.fixture(scope="session")
-def tiny_ipref(data_root) -> DarkRoomDataModule:
-    dm = DarkRoomDataModule(context_kind="step_preference", root_dir=data_root, pairs=True, query_labels=True,
+def tiny_ipref(data_root) -> PreferenceDataModule:
+    dm = darkroom_data(context_kind="step_preference", root_dir=data_root, pairs=True, query_labels=True,
                             **TINY)
     dm.prepare_data()
     return dm
 
 
 @pytest.fixture(scope="session")
-def tiny_reward(data_root) -> DarkRoomDataModule:
-    dm = DarkRoomDataModule(context_kind="reward", root_dir=data_root, query_labels=True, **TINY)
+def tiny_reward(data_root) -> PreferenceDataModule:
+    dm = darkroom_data(context_kind="reward", root_dir=data_root, query_labels=True, **TINY)
     dm.prepare_data()
     return dm

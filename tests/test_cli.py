@@ -1,7 +1,6 @@
-"""The icprl command: every DarkRoom config trains under fast_dev_run, overrides, errors, config saving."""
+"""The icprl command: every DarkRoom config trains under fast_dev_run, overrides, errors, config saving, evaluate."""
 
 import glob
-import importlib.util
 import json
 import subprocess
 import sys
@@ -10,22 +9,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from factories import cli_data_args, config_args
 
+from icprl_lightning import load_agent
 from icprl_lightning.cli import main, run_cli
+from icprl_lightning.evaluation import other_task_contexts, rollout_in_context, summarize
 
 DARKROOM_CONFIGS = ["configs/icpo_darkroom.yaml", "configs/dp2t_darkroom.yaml", "configs/dpt_darkroom.yaml"]
 
 
 def tiny_data_args(root) -> list[str]:
-    return ["--trainer.default_root_dir", str(root), "--data.init_args.root_dir", str(root),
-            "--data.init_args.trajectories_per_task", "3",
-            "--data.init_args.val_trajectories_per_task", "2", "--data.init_args.eval_contexts_per_task", "1",
-            "--data.init_args.calibration_episodes", "2", "--data.init_args.progress", "false"]
+    return ["--trainer.default_root_dir", str(root),
+            *cli_data_args("darkroom", root_dir=str(root), trajectories_per_task=3, val_trajectories_per_task=2,
+                           eval_contexts_per_task=1, calibration_episodes=2, reference_episodes=2, progress=False)]
 
 
 @pytest.mark.parametrize("config", DARKROOM_CONFIGS + sorted(glob.glob("configs/paper/*darkroom.yaml")))
 def test_config_runs_under_fast_dev_run(config, tmp_path):
-    cli = run_cli(["fit", "--config", config, "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
+    cli = run_cli(["fit", *config_args(config), "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
                    *tiny_data_args(tmp_path)])
     assert cli.trainer.state.finished
     assert cli.model.hparams.max_context == cli.datamodule.context_length  # linked, not repeated
@@ -56,7 +57,7 @@ def test_print_config_shows_linked_model_and_data():
     assert proc.returncode == 0, proc.stderr
     printed = yaml.safe_load(proc.stdout)
     assert printed["model"]["class_path"] == "icprl_lightning.methods.icpo.ICPOModule"
-    assert printed["data"]["init_args"]["bt_temperature"] == 1.0
+    assert printed["data"]["init_args"]["setting"]["init_args"]["bt_temperature"] == 1.0
 
 
 def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, monkeypatch, capsys):
@@ -82,24 +83,30 @@ def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, mo
     printed = capsys.readouterr().err  # the rollout callback's table, with the behavior policy beside
     assert "In-context rollouts on held-out tasks" in printed and "behavior return" in printed
     assert "darkroom/high" in printed
-    # the run's saved config + checkpoint deploy through scripts/evaluate_in_context.py
+    # the run's saved config + checkpoint deploy through `icprl evaluate`
     out = tmp_path / "table"
-    subprocess.run([sys.executable, f"{_repo()}/scripts/evaluate_in_context.py", "--seeds", "0", "--title", "t",
-                    "--run", f"ICPO={saved[0]}:{ckpt}", "--out", str(out)], check=True, capture_output=True)
+    main(["evaluate", "--seeds", "0", "--title", "t", "--run", f"ICPO={saved[0]}:{ckpt}", "--out", str(out)])
     table = json.loads(out.with_suffix(".json").read_text())
     assert list(table["results"]) == ["ICPO", "behavior", "optimal"] and table["reference_rows_from"] == "ICPO"
     reference = val.datamodule.load().manifest["info"]["test_reference"]
     assert table["results"]["behavior"]["high"]["return"] == pytest.approx(reference["high"]["behavior_return"])
     assert out.with_suffix(".png").stat().st_size > 0 and "| ICPO |" in out.with_suffix(".md").read_text()
+    # the ICPO row is the deployed checkpoint's mean over held-out goals, as the rollout callback measures it
+    suites = {s.quality: s for s in val.datamodule.evaluation_suites()}
+    high = rollout_in_context(load_agent(ckpt, seed=0), suites["high"], seed=0)
+    assert table["results"]["ICPO"]["high"]["return"] == pytest.approx(summarize(suites["high"], high)["return"])
     # --other-task-contexts: every episode keeps its env but gets the contexts of the next held-out task
-    spec = importlib.util.spec_from_file_location("evaluate_in_context", f"{_repo()}/scripts/evaluate_in_context.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
-    suite = val.datamodule.evaluation_suites()[0]
-    moved = script.other_task_contexts(suite)
+    suite = suites["low"]
+    moved = other_task_contexts(suite)
     np.testing.assert_array_equal(moved.task_index, suite.task_index)
     np.testing.assert_array_equal(moved.context.states.numpy(), np.roll(suite.context.states.numpy(), 1, axis=0))
     assert not np.array_equal(moved.context.states.numpy(), suite.context.states.numpy())
+    main(["evaluate", "--seeds", "0", "--run", f"ICPO={saved[0]}:{ckpt}", "--other-task-contexts",
+          "--out", str(tmp_path / "other")])
+    other = json.loads((tmp_path / "other.json").read_text())
+    assert other["other_task_contexts"] and "another held-out task" in (tmp_path / "other.md").read_text()
+    low = rollout_in_context(load_agent(ckpt, seed=0), moved, seed=0)
+    assert other["results"]["ICPO"]["low"]["return"] == pytest.approx(summarize(moved, low)["return"])
 
 
 def _repo() -> str:

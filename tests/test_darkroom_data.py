@@ -2,12 +2,12 @@
 
 import numpy as np
 import pytest
+from factories import darkroom_data, step_contexts  # noqa: E402
 
-from icprl_lightning.data.darkroom import generate_step_preferences
-from icprl_lightning.data.darkroom_datamodule import DarkRoomDataModule
 from icprl_lightning.data.store import DatasetError
-from icprl_lightning.envs.darkroom import DarkRoomFamily, transition
-from icprl_lightning.oracles.darkroom import optimal_advantage
+from icprl_lightning.families.darkroom import DarkRoomFamily
+from icprl_lightning.families.darkroom.env import transition
+from icprl_lightning.families.darkroom.oracle import optimal_advantage
 
 # Anything that would let a preference method see the task: rewards, goals, A*, Q*, V*.
 FORBIDDEN = ("reward", "goal", "advantage", "q_value", "value", "return")
@@ -16,7 +16,7 @@ FORBIDDEN = ("reward", "goal", "advantage", "q_value", "value", "return")
 def test_state_follows_the_preferred_action_and_labels_follow_bt():
     fam = DarkRoomFamily()
     goals = np.repeat(fam.train_goals, 50, axis=0)
-    arrays, stats = generate_step_preferences(fam, goals, np.full(len(goals), 0.5), 1.0, np.random.default_rng(0))
+    arrays, stats = step_contexts(fam, goals, 0.5, 1.0, np.random.default_rng(0))
     s, a, a2, y = (arrays[k] for k in ("states", "actions", "alt_actions", "preferred"))
     winner = np.where(y == 1, a, a2).astype(np.int64)
     nxt = transition(s[:, :-1].astype(np.int64), winner[:, :-1], fam.size)
@@ -39,11 +39,11 @@ def test_same_seed_same_bytes(tmp_path):
               calibration_episodes=2, progress=False)
     digests = []
     for name in ("a", "b"):
-        dm = DarkRoomDataModule(data_dir=str(tmp_path / name), **kw)
+        dm = darkroom_data(data_dir=str(tmp_path / name), **kw)
         dm.prepare_data()
         digests.append(sorted((k, v["sha256"]) for k, v in dm.load().manifest["files"].items()))
     assert digests[0] == digests[1]
-    other = DarkRoomDataModule(data_dir=str(tmp_path / "c"), **{**kw, "seed": 1})
+    other = darkroom_data(data_dir=str(tmp_path / "c"), **{**kw, "seed": 1})
     other.prepare_data()
     assert sorted((k, v["sha256"]) for k, v in other.load().manifest["files"].items()) != digests[0]
 
@@ -69,7 +69,7 @@ def test_preference_batches_carry_no_reward_goal_or_advantage(tiny_ipref):
 
 
 def test_icpo_batches_without_labels_have_no_optimal_actions(tiny_ipref, tiny_kwargs):
-    dm = DarkRoomDataModule(root_dir=tiny_ipref.root_dir, pairs=True, query_labels=False, **tiny_kwargs)
+    dm = darkroom_data(root_dir=tiny_ipref.root_dir, pairs=True, query_labels=False, **tiny_kwargs)
     batch = next(iter(dm.train_dataloader()))
     assert "optimal_actions" not in batch and "query_states" not in batch
 
@@ -85,7 +85,7 @@ def test_pairs_come_from_another_trajectory_of_the_same_task(tiny_ipref):
 
 
 def test_config_mismatch_names_the_key_and_the_fix(tiny_ipref, tiny_kwargs):
-    dm = DarkRoomDataModule(data_dir=str(tiny_ipref.path), bt_temperature=2.0, **tiny_kwargs)
+    dm = darkroom_data(data_dir=str(tiny_ipref.path), bt_temperature=2.0, **tiny_kwargs)
     with pytest.raises(DatasetError, match=r"bt_temperature: on disk 1.0, requested 2.0") as err:
         dm.prepare_data()
     assert "icprl generate" in str(err.value)

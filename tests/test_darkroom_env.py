@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from icprl_lightning.envs.darkroom import MOVES, NOOP, DarkRoomFamily
+from icprl_lightning.families.darkroom import DarkRoomFamily
+from icprl_lightning.families.darkroom.env import MOVES, NOOP
 
 
 def test_split_is_disjoint_fixed_and_covers_the_grid():

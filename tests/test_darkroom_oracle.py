@@ -5,8 +5,9 @@ import itertools
 import numpy as np
 import pytest
 
-from icprl_lightning.envs.darkroom import N_ACTIONS, DarkRoomFamily, step_reward, transition
-from icprl_lightning.oracles.darkroom import calibrate_mixing, optimal_actions, optimal_advantage
+from icprl_lightning.families.darkroom import DarkRoomFamily
+from icprl_lightning.families.darkroom.env import N_ACTIONS, step_reward, transition
+from icprl_lightning.families.darkroom.oracle import calibrate_mixing, optimal_actions, optimal_advantage
 
 
 def backward_induction(fam: DarkRoomFamily, goal: np.ndarray) -> np.ndarray:
@@ -59,7 +60,7 @@ def test_optimal_action_has_zero_advantage():
 def test_calibration_hits_targets_and_is_monotone():
     fam = DarkRoomFamily()
     cal = calibrate_mixing(fam, {"low": 0.2, "medium": 0.4, "high": 0.8}, episodes_per_goal=10, seed=0)
-    ps = [cal[q]["p_optimal"] for q in ("low", "medium", "high")]
+    ps = [cal[q]["mixing"] for q in ("low", "medium", "high")]
     assert ps == sorted(ps) and 0 < ps[0] < ps[-1] < 1
     for q in cal.values():
         assert abs(q["achieved"] - q["target"]) < 0.04, q

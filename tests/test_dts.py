@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from icprl_lightning.baselines.dts import DoubleThompsonSampling, run_dts
+from icprl_lightning.families.dueling_bandit.dts import DoubleThompsonSampling, run_dts
 
 # P[i, j] = P(arm i beats arm j) for 5 arms. Copeland scores 3, 2, 2, 1, 2: arm 0 is the unique Copeland
 # winner but loses to arm 4. In the champion's column (P(i beats 0)) the best challenger is arm 4; in its

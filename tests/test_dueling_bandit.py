@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from icprl_lightning.envs.dueling_bandit import LinearDuelingBanditFamily
+from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
 
 CONTEXT_KEYS = {"arms_first", "arms_second", "preferred"}
 

@@ -4,16 +4,16 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
+from factories import darkroom_data  # noqa: E402
 
 from icprl_lightning.callbacks.rollout import InContextRolloutCallback
-from icprl_lightning.data.darkroom_datamodule import DarkRoomDataModule
 from icprl_lightning.methods.icpo import ICPOModule
 
 
 @pytest.mark.slow
 def test_icpo_beats_the_behavior_policy_on_held_out_goals(tmp_path):
     L.seed_everything(0)
-    dm = DarkRoomDataModule(root_dir=str(tmp_path), trajectories_per_task=12, val_trajectories_per_task=2,
+    dm = darkroom_data(root_dir=str(tmp_path), trajectories_per_task=12, val_trajectories_per_task=2,
                             eval_contexts_per_task=3, calibration_episodes=10, pairs=True, batch_size=32,
                             progress=False)
     model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100, n_layer=2, n_embd=64, n_head=4,

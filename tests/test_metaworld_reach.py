@@ -12,26 +12,25 @@ pytest.importorskip("metaworld")
 from metaworld.envs.sawyer_reach_v3 import SawyerReachEnvV3  # noqa: E402
 from metaworld.policies import SawyerReachV3Policy  # noqa: E402
 
-from icprl_lightning.envs.metaworld_reach import (  # noqa: E402
+from icprl_lightning.families.metaworld_reach import ReachTaskFamily  # noqa: E402
+from icprl_lightning.families.metaworld_reach.env import (  # noqa: E402
     GOAL_SLICE,
     MIN_PUCK_GOAL_XY,
     PUCK_HIGH,
     PUCK_LOW,
     ReachOracleState,
-    ReachTaskFamily,
     ReachVectorEnv,
     latent_reward,
     reach_task,
     sample_puck_positions,
 )
-from icprl_lightning.oracles.metaworld_reach import (  # noqa: E402
+from icprl_lightning.families.metaworld_reach.oracle import (  # noqa: E402
     DEFAULT_BT_TEMPERATURE,
     advantage,
     calibrate_mixing,
     expert_actions,
     expert_q_values,
     metaworld_expert_actions,
-    mixed_actions,
     rollout_returns,
     simulated_q_values,
     step_label_agreement,
@@ -187,7 +186,7 @@ def test_expert_reaches_the_goal_and_beats_uniform(family: ReachTaskFamily) -> N
 
 
 def test_calibration_is_monotone_and_near_targets(calibration: dict[str, dict[str, float]]) -> None:
-    ps = [calibration[q]["p_expert"] for q in ("low", "medium", "high")]
+    ps = [calibration[q]["mixing"] for q in ("low", "medium", "high")]
     achieved = [calibration[q]["achieved"] for q in ("low", "medium", "high")]
     assert ps == sorted(ps) and len(set(ps)) == 3
     assert achieved == sorted(achieved)
@@ -215,12 +214,12 @@ def test_advantage_agrees_with_simulated_rollouts(family: ReachTaskFamily) -> No
         for t in range(150):
             state = _oracle_state(env, obs, t)
             if t in visits:
-                pair = np.concatenate([mixed_actions(state, 0.05, rng), mixed_actions(state, 0.4, rng)])
+                pair = np.concatenate([family.oracle.behavior_actions(state, p, rng) for p in (0.05, 0.4)])
                 truth = simulated_q_values(env, pair)
                 estimate = np.array([advantage(state, a[None])[0] for a in pair])
                 if truth[0] != truth[1]:
                     agree.append(np.sign(truth[0] - truth[1]) == np.sign(estimate[0] - estimate[1]))
-            obs, *_ = env.step(mixed_actions(state, 0.3, rng)[0])
+            obs, *_ = env.step(family.oracle.behavior_actions(state, 0.3, rng)[0])
     assert len(agree) >= 12 and np.mean(agree) >= 0.8
 
 
@@ -233,7 +232,7 @@ def test_advantage_is_zero_for_the_expert_and_ranks_it_above_random(family: Reac
             state = env.oracle_state()
             np.testing.assert_array_equal(advantage(state, expert_actions(state)), 0.0)
             wins.append(advantage(state, rng.uniform(-1, 1, size=(10, 4))) < 0)
-            env.step(mixed_actions(state, 0.3, rng))
+            env.step(family.oracle.behavior_actions(state, 0.3, rng))
         state = env.oracle_state()
         candidates = rng.uniform(-1, 1, size=(3, 10, 4))
         np.testing.assert_allclose(expert_q_values(state, candidates),
@@ -246,6 +245,6 @@ def test_advantage_is_zero_for_the_expert_and_ranks_it_above_random(family: Reac
 
 def test_default_temperature_gives_informative_labels(family: ReachTaskFamily,
                                                       calibration: dict[str, dict[str, float]]) -> None:
-    stats = step_label_agreement(family, calibration["low"]["p_expert"], calibration["high"]["p_expert"],
+    stats = step_label_agreement(family, calibration["low"]["mixing"], calibration["high"]["mixing"],
                                  DEFAULT_BT_TEMPERATURE, episodes=4, seed=0, num_workers=0)
     assert 0.75 <= stats["agreement"] <= 0.95, stats

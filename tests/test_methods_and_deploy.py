@@ -3,6 +3,7 @@
 import lightning as L
 import pytest
 import torch
+from factories import darkroom_data  # noqa: E402
 
 from icprl_lightning import StepPreferenceContext, load_agent
 from icprl_lightning.contexts import RewardContext
@@ -37,9 +38,8 @@ def test_every_parameter_moves_after_a_step(cls, fixture, kw, request):
 
 
 def test_icpo_refuses_batches_without_pairs(tiny_ipref, tiny_kwargs):
-    from icprl_lightning.data.darkroom_datamodule import DarkRoomDataModule
 
-    dm = DarkRoomDataModule(root_dir=tiny_ipref.root_dir, pairs=False, **tiny_kwargs)
+    dm = darkroom_data(root_dir=tiny_ipref.root_dir, pairs=False, **tiny_kwargs)
     with pytest.raises(KeyError, match="pairs: true"):
         _module(ICPOModule, dm).loss(next(iter(dm.train_dataloader())))
 

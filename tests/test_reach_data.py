@@ -14,12 +14,14 @@ import torch
 
 pytest.importorskip("metaworld")
 
+from factories import cli_data_args, config_args, reach_data, reward_contexts, step_contexts  # noqa: E402
+
 from icprl_lightning.cli import run_cli  # noqa: E402
-from icprl_lightning.data.metaworld_reach import generate_reward_contexts, generate_step_preferences  # noqa: E402
-from icprl_lightning.data.reach_datamodule import ReachDataModule  # noqa: E402
-from icprl_lightning.envs.metaworld_reach import GOAL_SLICE, ReachTaskFamily  # noqa: E402
+from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 from icprl_lightning.evaluation import rollout_in_context, summarize  # noqa: E402
-from icprl_lightning.oracles.metaworld_reach import expert_actions, expert_q_values  # noqa: E402
+from icprl_lightning.families.metaworld_reach import ReachTaskFamily  # noqa: E402
+from icprl_lightning.families.metaworld_reach.env import GOAL_SLICE  # noqa: E402
+from icprl_lightning.families.metaworld_reach.oracle import expert_actions, expert_q_values  # noqa: E402
 
 H = 20
 # Anything that would let a preference method see the task: rewards, goals, A*, Q*, V*.
@@ -28,13 +30,12 @@ TINY = dict(horizon=H, n_train_tasks=3, n_test_tasks=2, trajectories_per_task=3,
             eval_contexts_per_task=2, calibration_episodes=2, reference_episodes=2, num_workers=0, progress=False,
             batch_size=4)
 # Config runs: shorter episodes and one context per held-out goal, so each fast_dev_run takes seconds.
-CLI_TINY = [f"--data.init_args.{k}={str(v).lower() if isinstance(v, bool) else v}"
-            for k, v in {**TINY, "horizon": 10, "eval_contexts_per_task": 1}.items()]
+CLI_TINY = cli_data_args("reach", **{**TINY, "horizon": 10, "eval_contexts_per_task": 1})
 
 
 @pytest.fixture(scope="module")
 def family() -> ReachTaskFamily:
-    return ReachTaskFamily(seed=0, horizon=H)
+    return ReachTaskFamily(seed=0, horizon=H, num_workers=0)
 
 
 @pytest.fixture(scope="module")
@@ -43,15 +44,15 @@ def root(tmp_path_factory) -> str:
 
 
 @pytest.fixture(scope="module")
-def ipref(root) -> ReachDataModule:
-    dm = ReachDataModule(context_kind="step_preference", root_dir=root, pairs=True, **TINY)
+def ipref(root) -> PreferenceDataModule:
+    dm = reach_data(context_kind="step_preference", root_dir=root, pairs=True, **TINY)
     dm.prepare_data()
     return dm
 
 
 @pytest.fixture(scope="module")
-def reward(root) -> ReachDataModule:
-    dm = ReachDataModule(context_kind="reward", root_dir=root, query_labels=True, **TINY)
+def reward(root) -> PreferenceDataModule:
+    dm = reach_data(context_kind="reward", root_dir=root, query_labels=True, **TINY)
     dm.prepare_data()
     return dm
 
@@ -69,8 +70,7 @@ def _replay(family: ReachTaskFamily, goals: np.ndarray, seed: int, actions: np.n
 def test_state_follows_the_preferred_action_labels_follow_a_and_queries_are_visited_states(family):
     goals = np.repeat(family.train_goals[:3], 2, axis=0)
     n = len(goals)
-    arrays, stats = generate_step_preferences(family, goals, np.full(n, 0.1), np.full(n, 0.5), 1e-9,
-                                              np.random.default_rng(3), num_workers=0)
+    arrays, stats = step_contexts(family, goals, 0.5, 1e-9, np.random.default_rng(3), p_first=0.1)
     s, a, a2, y = (arrays[k] for k in ("states", "actions", "alt_actions", "preferred"))
     assert s.shape == (n, H, 39) and a.shape == a2.shape == (n, H, 4) and y.shape == (n, H) and y.dtype == np.uint8
     assert arrays["optimal_actions"].shape == (n, H, 4) and arrays["optimal_actions"].dtype == np.float32
@@ -95,8 +95,7 @@ def test_state_follows_the_preferred_action_labels_follow_a_and_queries_are_visi
 
 def test_reward_contexts_are_rollouts_with_the_latent_reward(family):
     goals = family.train_goals[:3]
-    arrays, stats = generate_reward_contexts(family, goals, np.array([0.0, 0.5, 1.0]), np.random.default_rng(1),
-                                             num_workers=0)
+    arrays, stats = reward_contexts(family, goals, [0.0, 0.5, 1.0], np.random.default_rng(1))
     np.testing.assert_array_equal(arrays["next_states"][:, :-1], arrays["states"][:, 1:])
     tcp = np.stack([state.tcp for _, state in _replay(family, goals, 1, arrays["actions"])], axis=1)
     np.testing.assert_allclose(arrays["rewards"][:, :-1], -np.linalg.norm(tcp[:, 1:] - goals[:, None], axis=-1),
@@ -127,7 +126,7 @@ def test_same_seed_same_bytes(tmp_path):
     kw = {**TINY, "n_train_tasks": 2, "n_test_tasks": 1, "trajectories_per_task": 2, "horizon": 8}
     digests = []
     for name, seed in (("a", 0), ("b", 0), ("c", 1)):
-        dm = ReachDataModule(data_dir=str(tmp_path / name), seed=seed, **kw)
+        dm = reach_data(data_dir=str(tmp_path / name), seed=seed, **kw)
         dm.prepare_data()
         digests.append(sorted((k, v["sha256"]) for k, v in dm.load().manifest["files"].items()))
     assert digests[0] == digests[1] and digests[0] != digests[2]
@@ -166,7 +165,7 @@ def test_evaluation_suites_report_success_and_normalize_per_goal(ipref):
 @pytest.mark.parametrize("config", ["configs/icpo_metaworld.yaml", "configs/dp2t_metaworld.yaml",
                                     "configs/dpt_metaworld.yaml", *sorted(glob.glob("configs/paper/*metaworld.yaml"))])
 def test_config_runs_under_fast_dev_run(config, root):
-    cli = run_cli(["fit", "--config", config, "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
+    cli = run_cli(["fit", *config_args(config), "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
                    "--trainer.default_root_dir", root, "--data.init_args.root_dir", root, *CLI_TINY])
     assert cli.trainer.state.finished
     assert cli.model.hparams.max_context == 10  # linked from the data's horizon
@@ -178,10 +177,10 @@ def test_config_runs_under_fast_dev_run(config, root):
 def test_icpo_beats_the_low_quality_behavior_policy_on_held_out_goals(tmp_path):
     """A tiny budget (≈2 min on 2 idle cores): horizon 60, 8 contexts per training goal, 12 short epochs."""
     small = {"horizon": 60, "trajectories_per_task": 8, "calibration_episodes": 6, "reference_episodes": 4,
-             "batch_size": 16, "progress": "false"}
+             "batch_size": 16, "progress": False}
     cli = run_cli(["fit", "--config", "configs/icpo_metaworld.yaml", "--trainer.logger", "false",
                    "--trainer.default_root_dir", str(tmp_path), "--data.init_args.root_dir", str(tmp_path),
-                   *[f"--data.init_args.{k}={v}" for k, v in small.items()],
+                   *cli_data_args("reach", **small),
                    "--trainer.max_epochs", "12", "--trainer.check_val_every_n_epoch", "12",
                    "--trainer.enable_progress_bar", "false"])
     metrics = {k: float(v) for k, v in cli.trainer.callback_metrics.items()}

@@ -16,14 +16,16 @@ import yaml
 
 pytest.importorskip("metaworld")
 
+from factories import cli_data_args, config_args, reach_data, trajectory_pairs  # noqa: E402
+
 from icprl_lightning import TrajectoryPreferenceContext, load_agent  # noqa: E402
 from icprl_lightning.cli import run_cli  # noqa: E402
 from icprl_lightning.contexts import RewardTrajectoryContext  # noqa: E402
-from icprl_lightning.data.metaworld_reach_tprl import generate_trajectory_preferences  # noqa: E402
-from icprl_lightning.data.reach_tprl_datamodule import PRETRAINING, ReachTPRLDataModule  # noqa: E402
-from icprl_lightning.data.tprl import label_trajectory_pairs  # noqa: E402
-from icprl_lightning.envs.metaworld_reach import GOAL_SLICE, ReachTaskFamily, latent_reward  # noqa: E402
-from icprl_lightning.oracles.metaworld_reach import expert_actions  # noqa: E402
+from icprl_lightning.data import PreferenceDataModule  # noqa: E402
+from icprl_lightning.data.settings.trajectory_pairs import label_trajectory_pairs  # noqa: E402
+from icprl_lightning.families.metaworld_reach import ReachTaskFamily  # noqa: E402
+from icprl_lightning.families.metaworld_reach.env import GOAL_SLICE, latent_reward  # noqa: E402
+from icprl_lightning.families.metaworld_reach.oracle import expert_actions  # noqa: E402
 from icprl_lightning.preferences import preference_probability  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -35,13 +37,13 @@ TINY = dict(horizon=H, n_train_tasks=3, n_test_tasks=2, trajectories_per_task=3,
             batch_size=4)
 SIZES = dict(n_layer=1, n_embd=16, n_head=2)
 # The same tiny dataset for every config (sizes, batch and workers overridden; the paper configs too).
-CLI_TINY = [f"--data.init_args.{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in TINY.items()]
+CLI_TINY = cli_data_args("reach", **TINY)
 CONFIGS = ("reward_gen_metaworld", "icrg_metaworld", "dit_metaworld", "dp2t_metaworld_tprl")
 
 
 @pytest.fixture(scope="module")
 def family() -> ReachTaskFamily:
-    return ReachTaskFamily(seed=0, horizon=H)
+    return ReachTaskFamily(seed=0, horizon=H, num_workers=0)
 
 
 @pytest.fixture(scope="module")
@@ -49,19 +51,19 @@ def root(tmp_path_factory) -> str:
     return str(tmp_path_factory.mktemp("reach_tprl"))
 
 
-def _prepared(**kwargs) -> ReachTPRLDataModule:
-    dm = ReachTPRLDataModule(**{**TINY, **kwargs})
+def _prepared(context_kind: str = "trajectory_preference", **kwargs) -> PreferenceDataModule:
+    dm = reach_data(context_kind, **{**TINY, **kwargs})
     dm.prepare_data()
     return dm
 
 
 @pytest.fixture(scope="module")
-def tprl(root) -> ReachTPRLDataModule:
+def tprl(root) -> PreferenceDataModule:
     return _prepared(root_dir=root, pairs=True, query_labels=True)
 
 
 @pytest.fixture(scope="module")
-def tprl_rewards(root) -> ReachTPRLDataModule:
+def tprl_rewards(root) -> PreferenceDataModule:
     return _prepared(root_dir=root, context_kind="reward_trajectory")
 
 
@@ -72,8 +74,7 @@ def test_labels_follow_bt_on_return_differences(family):
     goals = np.repeat(family.train_goals, 40, axis=0)[:120]
     p = np.random.default_rng(1).uniform(0.0, 0.6, len(goals))  # mixed qualities: a spread of return gaps
     temperature = 0.07  # ≈ the median |ΔR| of these 10-step pairs: labels neither coin flips nor deterministic
-    arrays, rewards, stats = generate_trajectory_preferences(family, goals, p, temperature, np.random.default_rng(0),
-                                                             num_workers=0)
+    arrays, rewards, stats = trajectory_pairs(family, goals, p, temperature, np.random.default_rng(0))
     ret_a, ret_b = rewards["rewards_a"].sum(1), rewards["rewards_b"].sum(1)
     diff = ret_a.astype(np.float64) - ret_b
     agree = (diff > 0) == (arrays["preferred"] == 1)
@@ -97,8 +98,8 @@ def test_labels_follow_bt_on_return_differences(family):
 def test_pairs_replay_in_the_env_and_queries_are_visited_states_with_expert_labels(family):
     goals = np.repeat(family.train_goals[:3], 2, axis=0)
     n = len(goals)
-    arrays, rewards, _ = generate_trajectory_preferences(family, goals, np.full(n, 0.3), 1.0,
-                                                         np.random.default_rng(7), behavior=True, num_workers=0)
+    arrays, rewards, _ = trajectory_pairs(family, goals, np.full(n, 0.3), 1.0, np.random.default_rng(7), behavior=True,
+                                         queries=True)
     assert set(arrays) == {*PAIR, "behavior_states", "behavior_actions", "query_states", "optimal_actions"}
     assert set(rewards) == {"rewards_a", "rewards_b", "behavior_rewards"}
     assert arrays["preferred"].shape == (n,) and arrays["preferred"].dtype == np.uint8
@@ -139,7 +140,7 @@ def test_preference_batches_and_eval_contexts_are_reward_free(tprl):
         assert torch.all(batch[k][..., GOAL_SLICE] == 0), k
     stored = [f for f in tprl.load().manifest["files"] if not f.startswith("tasks/")]  # tasks: evaluation only
     assert stored and not any(w in f for f in stored for w in FORBIDDEN)  # nothing on disk either
-    without_labels = ReachTPRLDataModule(root_dir=tprl.root_dir, **TINY)
+    without_labels = reach_data("trajectory_preference", root_dir=tprl.root_dir, **TINY)
     assert set(next(iter(without_labels.val_dataloader()))) == set(PAIR)
     for suite in tprl.evaluation_suites():
         ctx = suite.context
@@ -152,20 +153,21 @@ def test_splits_manifest_agreement_and_calibration(tprl):
     data = tprl.load()
     assert data["train"]["states_a"].shape == (9, H, 39) and data["val"]["preferred"].shape == (6,)
     np.testing.assert_array_equal(data["train"]["task_index"], np.repeat(np.arange(3), 3))
-    np.testing.assert_array_equal(data["train"]["quality"], PRETRAINING)
+    np.testing.assert_array_equal(data["train"]["quality"], 3)  # "pretraining": after low, medium, high
     np.testing.assert_array_equal(data["eval_medium"]["quality"], 1)
     info = data.manifest["info"]
     calibration = info["calibration"]
     assert set(calibration) == {"low", "medium", "high", "pretraining"}
     assert calibration["pretraining"]["target"] == 0.5
-    p = {q: c["p_expert"] for q, c in calibration.items()}
+    p = {q: c["mixing"] for q, c in calibration.items()}
     assert p["medium"] <= p["pretraining"] <= p["high"]
     for stats in (info["train_statistics"], *info["eval_statistics"].values()):
         assert 0.0 <= stats["label_agreement"] <= 1.0 and stats["tie_fraction"] == 0.0
     ref = info["test_reference"]
     assert {"behavior_return", "behavior_success", "expert_return", "uniform_return"} <= set(ref["high"])
     config = tprl.generator_config()
-    assert config["setting"] == "T-PRL" and config["tprl_quality"] == 0.5 and config["bt_temperature"] == 1.0
+    assert config["setting"] == "TrajectoryPairs" and config["train_policy"] == "pretraining"
+    assert config["pretraining_target"] == 0.5 and config["bt_temperature"] == 1.0
     assert "trajectory_preference" in tprl.path.name
 
 
@@ -208,11 +210,6 @@ def test_other_pairs_and_heldout_pairs_come_from_the_same_task(tprl):
     assert split["task_index"][0] == split["task_index"][1]
 
 
-def test_refuses_other_kinds():
-    with pytest.raises(ValueError, match="trajectory_preference"):
-        ReachTPRLDataModule(context_kind="step_preference")
-
-
 # ---- configs and deployment ---------------------------------------------------------------------------
 
 def _fast_dev_run(config: str, root: str, tmp_path, *extra: str, tiny_model: bool = True):
@@ -220,7 +217,7 @@ def _fast_dev_run(config: str, root: str, tmp_path, *extra: str, tiny_model: boo
     sizes = [f"--model.init_args.{k}={v}" for k, v in SIZES.items()] if tiny_model else []
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(tmp_path)
-        return run_cli(["fit", "--config", str(REPO / config), "--trainer.fast_dev_run", "1", "--trainer.logger",
+        return run_cli(["fit", *config_args(REPO / config), "--trainer.fast_dev_run", "1", "--trainer.logger",
                         "false", "--data.init_args.root_dir", root, *CLI_TINY, *sizes, *extra])
 
 
@@ -276,8 +273,8 @@ def test_paper_configs_have_the_paper_architecture_and_data():
         cfg = yaml.safe_load((REPO / f"configs/paper/{stem}.yaml").read_text())
         args = cfg["model"]["init_args"]
         assert (args["n_layer"], args["n_embd"], args["n_head"]) == (8, 256, 8), name
-        assert cfg["data"]["init_args"]["trajectories_per_task"] == 5000 and args["lr"] == 3e-4
-        assert cfg["data"]["class_path"].endswith("ReachTPRLDataModule")
+        assert cfg["data"]["init_args"]["setting"]["init_args"]["trajectories_per_task"] == 5000
+        assert args["lr"] == 3e-4
 
 
 @pytest.mark.parametrize("name", CONFIGS)

@@ -13,17 +13,17 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3 import DQN
 
 from icprl_lightning.baselines import dqn_from_scratch, sac_from_scratch
-from icprl_lightning.baselines.sb3_common import (
+from icprl_lightning.families.darkroom import DarkRoomFamily
+from icprl_lightning.families.darkroom.gym_env import DarkRoomGoalEnv
+from icprl_lightning.families.metaworld_reach.env import latent_reward
+from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
+from icprl_lightning.families.metaworld_reach.sac import SACOracle, calibrate_checkpoints, train_sac_oracle
+from icprl_lightning.families.sb3_common import (
     EvalCheckpointCallback,
     EvalRecord,
     run_episodes,
 )
-from icprl_lightning.envs.darkroom import DarkRoomFamily
-from icprl_lightning.envs.darkroom_gym import DarkRoomGoalEnv
-from icprl_lightning.envs.metaworld_reach import latent_reward
-from icprl_lightning.envs.reach_gym import ReachGoalEnv
 from icprl_lightning.io import write_json_atomic
-from icprl_lightning.oracles.sac import SACOracle, calibrate_checkpoints, train_sac_oracle
 
 # Inside reach-v3's goal box (x ∈ [−0.1, 0.1], y ∈ [0.8, 0.9], z ∈ [0.05, 0.3]); no ML1 call (≈7 s) needed.
 GOALS = np.array([[0.05, 0.85, 0.2], [-0.05, 0.82, 0.1]])

@@ -6,10 +6,11 @@ import pathlib
 import lightning as L
 import pytest
 import torch
+from factories import cli_data_args, darkroom_data  # noqa: E402
 
 from icprl_lightning import TrajectoryPreferenceContext, load_agent
 from icprl_lightning.cli import run_cli
-from icprl_lightning.data.darkroom_tprl_datamodule import DarkRoomTPRLDataModule
+from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 from icprl_lightning.methods.dit import DITModule, discounted_returns
 from icprl_lightning.methods.dpt import DP2TModule
 from icprl_lightning.methods.icrg import ICRGAgent, ICRGModule
@@ -64,15 +65,15 @@ def test_advantage_weighted_loss_by_hand_with_clipping():
 # ---- modules -------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def tprl(data_root) -> DarkRoomTPRLDataModule:
-    dm = DarkRoomTPRLDataModule(root_dir=data_root, pairs=True, query_labels=True, **TPRL_TINY)
+def tprl(data_root) -> PreferenceDataModule:
+    dm = darkroom_data("trajectory_preference", root_dir=data_root, pairs=True, query_labels=True, **TPRL_TINY)
     dm.prepare_data()
     return dm
 
 
 @pytest.fixture(scope="module")
-def tprl_rewards(data_root) -> DarkRoomTPRLDataModule:
-    dm = DarkRoomTPRLDataModule(context_kind="reward_trajectory", root_dir=data_root, **TPRL_TINY)
+def tprl_rewards(data_root) -> PreferenceDataModule:
+    dm = darkroom_data(context_kind="reward_trajectory", root_dir=data_root, **TPRL_TINY)
     dm.prepare_data()
     return dm
 
@@ -234,8 +235,7 @@ def test_rewardgen_checkpoint_is_not_an_agent(reward_gen_ckpt):
 def _tiny_cli(config: str, root, *extra: str):
     args = ["fit", "--config", str(REPO / config), "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
             "--data.init_args.root_dir", str(root), "--data.init_args.progress", "false",
-            *(x for k, v in TPRL_TINY.items() if k not in ("progress", "batch_size")
-              for x in (f"--data.init_args.{k}", str(v))),
+            *cli_data_args("darkroom", **{k: v for k, v in TPRL_TINY.items() if k not in ("progress", "batch_size")}),
             *(x for k, v in SIZES.items() for x in (f"--model.init_args.{k}", str(v))), *extra]
     return run_cli(args)
 
@@ -266,7 +266,8 @@ def test_paper_configs_have_the_paper_architecture():
         cfg = yaml.safe_load((REPO / f"configs/paper/{name}_darkroom_tprl.yaml").read_text())
         args = cfg["model"]["init_args"]
         assert (args["n_layer"], args["n_embd"], args["n_head"]) == (4, 32, 4), name
-        assert cfg["data"]["init_args"]["trajectories_per_task"] == 5000 and args["lr"] == 3e-4
+        assert cfg["data"]["init_args"]["setting"]["init_args"]["trajectories_per_task"] == 5000
+        assert args["lr"] == 3e-4
 
 
 # ---- learning ----------------------------------------------------------------------------------------
@@ -277,9 +278,9 @@ def test_rewardgen_beats_chance_on_heldout_pairs(tmp_path):
     from icprl_lightning.callbacks.pair_accuracy import HeldOutPairAccuracyCallback
 
     L.seed_everything(0)
-    dm = DarkRoomTPRLDataModule(root_dir=str(tmp_path), trajectories_per_task=30, val_trajectories_per_task=2,
-                                eval_contexts_per_task=4, calibration_episodes=5, progress=False, batch_size=32,
-                                pairs=True)
+    dm = darkroom_data("trajectory_preference", root_dir=str(tmp_path), trajectories_per_task=30,
+                       val_trajectories_per_task=2, eval_contexts_per_task=4, calibration_episodes=5, progress=False,
+                       batch_size=32, pairs=True)
     callback = HeldOutPairAccuracyCallback()
     trainer = L.Trainer(max_epochs=3, logger=False, enable_checkpointing=False, enable_progress_bar=False,
                         enable_model_summary=False, callbacks=[callback], num_sanity_val_steps=0)

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 import torch
+from factories import darkroom_data, trajectory_pairs  # noqa: E402
 
 from icprl_lightning import TrajectoryPreferenceContext
 from icprl_lightning.contexts import ActionSpec, context_from_batch
-from icprl_lightning.data.darkroom_datamodule import DarkRoomDataModule
-from icprl_lightning.data.darkroom_tprl import generate_trajectory_preferences
-from icprl_lightning.data.darkroom_tprl_datamodule import DarkRoomTPRLDataModule
-from icprl_lightning.envs.darkroom import DarkRoomFamily, step_reward, transition
+from icprl_lightning.data import PreferenceDataModule  # noqa: E402
+from icprl_lightning.families.darkroom import DarkRoomFamily
+from icprl_lightning.families.darkroom.env import step_reward, transition
 from icprl_lightning.models.tokenizers import TrajectoryPreferenceTokenizer
 
 FORBIDDEN = ("reward", "goal", "advantage", "q_value", "value", "return")
@@ -18,15 +18,15 @@ TPRL_TINY = dict(trajectories_per_task=3, val_trajectories_per_task=2, eval_cont
 
 
 @pytest.fixture(scope="module")
-def tprl(data_root) -> DarkRoomTPRLDataModule:
-    dm = DarkRoomTPRLDataModule(root_dir=data_root, pairs=True, query_labels=True, **TPRL_TINY)
+def tprl(data_root) -> PreferenceDataModule:
+    dm = darkroom_data("trajectory_preference", root_dir=data_root, pairs=True, query_labels=True, **TPRL_TINY)
     dm.prepare_data()
     return dm
 
 
 @pytest.fixture(scope="module")
-def tprl_rewards(data_root) -> DarkRoomTPRLDataModule:
-    dm = DarkRoomTPRLDataModule(context_kind="reward_trajectory", root_dir=data_root, **TPRL_TINY)
+def tprl_rewards(data_root) -> PreferenceDataModule:
+    dm = darkroom_data(context_kind="reward_trajectory", root_dir=data_root, **TPRL_TINY)
     dm.prepare_data()
     return dm
 
@@ -36,7 +36,7 @@ def test_labels_follow_bt_on_return_differences():
     goals = np.repeat(fam.train_goals, 40, axis=0)
     p = np.random.default_rng(1).uniform(0.05, 0.5, len(goals))  # spread of return gaps
     temperature = 8.0  # large enough that labels are not deterministic on DarkRoom's 0–95 returns
-    arrays, rewards, stats = generate_trajectory_preferences(fam, goals, p, temperature, np.random.default_rng(0))
+    arrays, rewards, stats = trajectory_pairs(fam, goals, p, temperature, np.random.default_rng(0))
     diff = rewards["rewards_a"].sum(1) - rewards["rewards_b"].sum(1)
     y = arrays["preferred"]
     for lo, hi in ((-12, -6), (-6, -1), (-1, 1), (1, 6), (6, 12)):
@@ -45,7 +45,7 @@ def test_labels_follow_bt_on_return_differences():
         n = sel.sum()
         assert n > 150, (lo, hi)
         assert abs(y[sel].mean() - expected) < 4 * np.sqrt(expected * (1 - expected) / n), (lo, hi)
-    sharp = generate_trajectory_preferences(fam, goals, p, 1.0, np.random.default_rng(0))[2]
+    sharp = trajectory_pairs(fam, goals, p, 1.0, np.random.default_rng(0))[2]
     assert 0.5 < stats["label_agreement"] < sharp["label_agreement"] <= 1.0
     assert stats["tie_fraction"] == sharp["tie_fraction"]  # same seed, same trajectories
 
@@ -53,7 +53,7 @@ def test_labels_follow_bt_on_return_differences():
 def test_trajectories_follow_the_dynamics_and_hold_no_rewards():
     fam = DarkRoomFamily()
     goals = np.repeat(fam.train_goals[:5], 4, axis=0)
-    arrays, rewards, _ = generate_trajectory_preferences(fam, goals, np.full(len(goals), 0.5), 1.0,
+    arrays, rewards, _ = trajectory_pairs(fam, goals, np.full(len(goals), 0.5), 1.0,
                                                          np.random.default_rng(0), behavior=True)
     assert set(arrays) == {"states_a", "actions_a", "states_b", "actions_b", "preferred", "behavior_states",
                            "behavior_actions"}
@@ -84,12 +84,12 @@ def test_batches_and_eval_contexts_carry_no_reward(tprl):
 
 def test_manifest_records_agreement_ties_and_references(tprl):
     info = tprl.load().manifest["info"]
-    assert info["calibration"]["high"]["p_optimal"] > info["calibration"]["low"]["p_optimal"]
+    assert info["calibration"]["high"]["mixing"] > info["calibration"]["low"]["mixing"]
     for stats in (info["train_statistics"], *info["eval_statistics"].values()):
         assert 0.5 < stats["label_agreement"] <= 1.0 and 0.0 <= stats["tie_fraction"] < 0.5
     ref = info["test_reference"]
     assert ref["low"]["behavior_return"] < ref["medium"]["behavior_return"] < ref["high"]["behavior_return"]
-    assert tprl.generator_config()["setting"] == "T-PRL" and "trajectory_preference" in tprl.path.name
+    assert tprl.generator_config()["setting"] == "TrajectoryPairs" and "trajectory_preference" in tprl.path.name
 
 
 def test_reward_kind_holds_the_same_trajectories_with_true_rewards(tprl, tprl_rewards):
@@ -122,11 +122,17 @@ def test_other_pairs_and_heldout_pairs_come_from_the_same_task(tprl):
     assert split["task_index"][0] == split["task_index"][1]
 
 
-def test_darkroom_datamodule_refuses_tprl_kinds():
-    with pytest.raises(ValueError, match="step_preference"):
-        DarkRoomDataModule(context_kind="trajectory_preference")
-    with pytest.raises(ValueError, match="trajectory_preference"):
-        DarkRoomTPRLDataModule(context_kind="step_preference")
+def test_settings_refuse_unknown_policies_and_bad_temperatures():
+    from icprl_lightning.data.settings import StepPreferences, TrajectoryPairs
+
+    with pytest.raises(ValueError, match="train_policy must be one of"):
+        StepPreferences(train_policy="pretraining")  # only T-PRL calibrates a pretraining policy
+    with pytest.raises(ValueError, match="first_policy"):
+        StepPreferences(first_policy="expert")
+    with pytest.raises(ValueError, match="next_state_follows"):
+        StepPreferences(next_state_follows="goal")
+    with pytest.raises(ValueError, match="bt_temperature"):
+        TrajectoryPairs(bt_temperature=0.0)
 
 
 def _pair(b: int = 3, h: int = 5) -> TrajectoryPreferenceContext:

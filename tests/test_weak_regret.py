@@ -1,10 +1,11 @@
-"""Weak regret reg(a, a') = min(R* − R(a), R* − R(a')) and its torchmetrics accumulator."""
+"""Weak regret reg(a, a') = min(R* − R(a), R* − R(a')), its torchmetrics accumulator, and the evaluation's curves."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
+from icprl_lightning.evaluation import curve_mean_sem, regret_curve, summarize_regret
 from icprl_lightning.metrics import WeakRegret, weak_regret
 
 REWARDS = torch.tensor([
@@ -48,3 +49,25 @@ def test_rejects_bad_shapes() -> None:
         weak_regret(REWARDS, torch.tensor([0.0, 1.0, 2.0]), torch.tensor([1, 2, 3]))
     with pytest.raises(ValueError, match="outside"):
         weak_regret(REWARDS, torch.tensor([0, 1, 4]), torch.tensor([1, 2, 3]))
+
+
+def test_curves_and_their_summary_agree_with_the_metric() -> None:
+    """The evaluation's per-h curves [B, H], summarized over problems, equal WeakRegret over the same duels."""
+    g = torch.Generator().manual_seed(0)
+    rewards = torch.randn(9, 5, generator=g, dtype=torch.float64)
+    first, second = torch.randint(0, 5, (9, 7), generator=g), torch.randint(0, 5, (9, 7), generator=g)
+    curve = regret_curve(rewards, (first, second))
+    assert curve.shape == (9, 7)
+    torch.testing.assert_close(curve[:, 3], weak_regret(rewards, first[:, 3], second[:, 3]))
+    summary = summarize_regret(curve)
+    final, over_h = WeakRegret(), WeakRegret()
+    final.update(rewards, first[:, -1], second[:, -1])
+    for h in range(7):
+        over_h.update(rewards, first[:, h], second[:, h])
+    assert summary["weak_regret"] == pytest.approx(final.compute().item(), rel=1e-6)
+    assert summary["weak_regret_auc"] == pytest.approx(over_h.compute().item(), rel=1e-6)
+    per_problem = curve[:, -1].numpy()
+    assert summary["weak_regret_sem"] == pytest.approx(per_problem.std(ddof=1) / 3.0)  # sqrt(9) problems
+    mean, sem = curve_mean_sem(curve)
+    assert mean.shape == sem.shape == (7,) and mean[-1] == pytest.approx(summary["weak_regret"])
+    assert sem[-1] == pytest.approx(summary["weak_regret_sem"])

@@ -14,7 +14,7 @@ Protocol, as for SAC on Meta-World: one agent per (goal, seed) on ``DarkRoomGoal
 goal is not observed; it is a constant of the task); every ``eval_every`` episodes the greedy policy is
 evaluated on ``eval_episodes`` fixed-seed episodes (random starts); the best checkpoint is restored
 and reported on ``test_episodes`` fresh episodes beside the uniform policy and the optimal policy
-(closed form, ``oracles/darkroom.py``) on the same starts; ``normalized_return`` = R / R_optimal, the
+(closed form, ``families/darkroom/oracle.py``) on the same starts; ``normalized_return`` = R / R_optimal, the
 DarkRoom oracle's share-of-optimal convention.
 
 Budget. The paper trains 1,000 episodes (100,000 steps) per goal; the CPU default is 100 episodes
@@ -41,11 +41,12 @@ import stable_baselines3
 import torch
 from stable_baselines3 import DQN
 
-from icprl_lightning.baselines.sb3_common import Act, from_scratch_record, train_from_scratch
-from icprl_lightning.envs.darkroom import N_ACTIONS, DarkRoomFamily
-from icprl_lightning.envs.darkroom_gym import DarkRoomGoalEnv
+from icprl_lightning.families.darkroom import DarkRoomFamily
+from icprl_lightning.families.darkroom.env import N_ACTIONS
+from icprl_lightning.families.darkroom.gym_env import DarkRoomGoalEnv
+from icprl_lightning.families.darkroom.oracle import optimal_actions
+from icprl_lightning.families.sb3_common import Act, from_scratch_record, train_from_scratch
 from icprl_lightning.io import write_json_atomic
-from icprl_lightning.oracles.darkroom import optimal_actions
 
 PAPER_EPISODES = 1000
 DEFAULT_EPISODES = 100

@@ -8,7 +8,7 @@ Every ``eval_every`` episodes the deterministic policy is evaluated on ``eval_ep
 fixed seed; the best checkpoint by that return is restored and reported on ``test_episodes`` fresh
 episodes (return, success = the 0.05 radius reached at some step), beside the uniform policy and
 metaworld's scripted expert on the same episodes, whence the normalized return
-(R − R_uniform) / (R_expert − R_uniform) of ``oracles/metaworld_reach.py``.
+(R − R_uniform) / (R_expert − R_uniform) of ``families/metaworld_reach/oracle.py``.
 
 Budget. The paper trains 1,000 episodes (150,000 steps) per goal. SB3's SAC costs ≈ 35 ms of CPU per
 step here (one gradient step per env step, 256×256 networks, one torch thread), so the CPU default is
@@ -35,18 +35,19 @@ import stable_baselines3
 import torch
 from stable_baselines3 import SAC
 
-from icprl_lightning.baselines.sb3_common import Act, from_scratch_record, train_from_scratch
-from icprl_lightning.envs.metaworld_reach import ACTION_DIM, HORIZON, ReachTaskFamily
-from icprl_lightning.envs.reach_gym import ReachGoalEnv
+from icprl_lightning.families.metaworld_reach import ReachTaskFamily
+from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON
+from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
+from icprl_lightning.families.metaworld_reach.oracle import expert_actions, normalized_return
+from icprl_lightning.families.sb3_common import Act, from_scratch_record, train_from_scratch
 from icprl_lightning.io import write_json_atomic
-from icprl_lightning.oracles.metaworld_reach import expert_actions, normalized_return
 
 PAPER_EPISODES = 1000
 DEFAULT_EPISODES = 20
 
 
 def reach_references(env: ReachGoalEnv, seed: int) -> dict[str, Act]:
-    """Uniform actions (seeded) and the scripted expert of ``oracles/metaworld_reach.py``, which reads
+    """Uniform actions (seeded) and the scripted expert of ``families/metaworld_reach/oracle.py``, which reads
     ``env``'s privileged state (the goal, the TCP): run them on ``env`` itself."""
     rng = np.random.default_rng(seed)
     return {"uniform": lambda obs: rng.uniform(-1.0, 1.0, size=ACTION_DIM).astype(np.float32),

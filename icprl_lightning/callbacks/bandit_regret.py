@@ -1,32 +1,38 @@
 """Weak regret on held-out dueling-bandit problems at validation time (paper, appendix "Dueling Bandit Experiments").
 
-For every context source the DataModule offers (``bandit_suites``: uniform, dirichlet, dts), the module's
-policy and Double Thompson Sampling both play one duel after each context size h = 1..H of the held-out
-contexts (``bandit_evaluation.evaluate_duels``), scored with the ``WeakRegret`` metric. Logged under
-``val/bandit/<source>/``, side by side:
+For every context source the DataModule offers (``bandit_suites``: uniform, dirichlet, dts), the module
+is deployed through the public ``Agent`` and plays one duel after each context size h = 1..H of the
+held-out contexts (``evaluation.evaluate_duels``), beside Double Thompson Sampling on the same comparisons
+and the contexts' own behaviour policy. Each duel is scored by the weak regret
+min(R* − R(a), R* − R(a')). Logged under ``val/bandit/<source>/<method>/``, with ``<method>`` the
+module's own name (``ICPOModule`` -> ``icpo``, or ``method`` if given), ``dts`` and ``behavior``:
 
-* ``weak_regret`` / ``weak_regret_auc`` — ICPO at h = H / averaged over h = 1..H;
-* ``dts_weak_regret`` / ``dts_weak_regret_auc`` — DTS on the same comparisons;
-* ``behavior_weak_regret`` / ``behavior_weak_regret_auc`` — the contexts' own behaviour policy.
+* ``weak_regret`` / ``weak_regret_sem`` — at h = H, mean ± standard error over held-out problems;
+* ``weak_regret_auc`` / ``weak_regret_auc_sem`` — averaged over h = 1..H.
 
-Runs every ``every_n_epochs`` epochs and at the last one; the sanity check is skipped. Evaluation is
-seeded, so DTS and the behaviour give the same numbers at every validation.
+The same numbers are printed as a table (one row per source; ``print_table``). Runs every
+``every_n_epochs`` epochs and at the last one; the sanity check is skipped. Evaluation is seeded, so DTS
+and the behaviour give the same numbers at every validation.
 """
 
 from __future__ import annotations
 
 import lightning as L
 
-from icprl_lightning.bandit_evaluation import evaluate_duels
-from icprl_lightning.metrics import WeakRegret
+from icprl_lightning.evaluation.duels import evaluate_duels, method_name, regret_curve, summarize_regret
+from icprl_lightning.evaluation.report import regret_table, show_table
 
 
 class BanditRegretCallback(L.Callback):
-    def __init__(self, every_n_epochs: int = 1, seed: int = 0, chunk_size: int = 32) -> None:
+    def __init__(self, every_n_epochs: int = 1, seed: int = 0, chunk_size: int = 32, method: str | None = None,
+                 greedy: bool | None = None, print_table: bool = True) -> None:
         self.every_n_epochs = every_n_epochs
         self.seed = seed
-        self.chunk_size = chunk_size
-        self.last_results: dict[str, float] = {}
+        self.chunk_size = chunk_size  # problems per forward pass (bounds memory)
+        self.method = method
+        self.greedy = greedy  # None: the method's own default (argmax for ICPO, as in the paper)
+        self.print_table = print_table
+        self.last_results: dict[str, dict[str, float]] = {}  # val/bandit/<source>/<method> -> summary
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking:
@@ -34,18 +40,18 @@ class BanditRegretCallback(L.Callback):
         epoch = trainer.current_epoch + 1
         if trainer.state.fn == "fit" and epoch % self.every_n_epochs != 0 and epoch != trainer.max_epochs:
             return
-        results: dict[str, float] = {}
+        options = {} if self.greedy is None else {"greedy": self.greedy}
+        agent = pl_module.make_agent(seed=self.seed, **options)
+        method = self.method or method_name(type(pl_module))
+        by_source: dict[str, dict[str, dict[str, float]]] = {}
         for suite in trainer.datamodule.bandit_suites():
-            rewards = suite.expected_rewards
-            for method, (first, second) in evaluate_duels(pl_module.policy, suite, self.seed,
-                                                          self.chunk_size).items():
-                name = f"val/bandit/{suite.source}/" + ("weak_regret" if method == "icpo" else
-                                                        f"{method}_weak_regret")
-                final, over_h = WeakRegret(), WeakRegret()
-                final.update(rewards, first[:, -1], second[:, -1])
-                over_h.update(rewards.repeat_interleave(first.shape[1], dim=0), first.reshape(-1),
-                              second.reshape(-1))
-                results[name] = float(final.compute())
-                results[f"{name}_auc"] = float(over_h.compute())
-        self.last_results = results
-        pl_module.log_dict(results, on_epoch=True)
+            duels = evaluate_duels(agent, suite, method, self.seed, self.chunk_size)
+            by_source[suite.source] = {name: summarize_regret(regret_curve(suite.expected_rewards, pair))
+                                       for name, pair in duels.items()}
+        self.last_results = {f"val/bandit/{source}/{name}": summary
+                             for source, per_method in by_source.items() for name, summary in per_method.items()}
+        pl_module.log_dict({f"{prefix}/{k}": float(v) for prefix, summary in self.last_results.items()
+                            for k, v in summary.items()}, on_epoch=True)
+        if self.print_table and trainer.is_global_zero:
+            when = f", epoch {epoch}" if trainer.state.fn == "fit" else ""
+            show_table(regret_table(by_source, f"Weak regret on held-out bandit problems{when}"))

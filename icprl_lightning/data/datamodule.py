@@ -1,50 +1,69 @@
-"""The shared LightningDataModule of every task family: generate once, store, memory-map, batch.
+"""The one LightningDataModule of generated data: ``PreferenceDataModule(family, setting)``.
 
-A family's DataModule subclass says how to generate its dataset (``generator_config`` and
-``generate``), what its contexts look like (``context_kind``, ``state_dim``, ``action_spec``) and how its
-held-out tasks are evaluated (``evaluation_suites``); it sets ``self.family`` (whose ``horizon`` is the
-context length) and ``self.per_task`` (trajectories per task in train and val). This base class owns the rest:
+The family (``families/``) says what the tasks are; the setting (``data/settings/``) says how a dataset
+is made from them (I-PRL step preferences, T-PRL pairs, DPT reward contexts, DIT reward trajectories, the
+bandit recipe). Both are chosen by ``class_path`` in YAML::
 
-* ``prepare_data()`` generates the dataset when it is missing (atomic write, see ``data/store.py``);
-  an existing one made with another config is an error that names the differing keys.
-* Batches are drawn a whole batch at a time from the memory-mapped arrays (one fancy index per field).
-* A training sample is one context (a trajectory of one task). With ``pairs=True`` it also carries the
-  comparisons of *another* trajectory of the same task (``pair_*`` fields): ICPO's default loss pairs,
-  which the model cannot copy from its context. With ``query_labels=True`` it carries query states and
-  their optimal-action labels (``query_states``, ``optimal_actions``) for DPT/DP²T.
+    data:
+      class_path: icprl_lightning.data.PreferenceDataModule
+      init_args:
+        family: {class_path: icprl_lightning.families.darkroom.DarkRoomFamily}
+        setting:
+          class_path: icprl_lightning.data.settings.StepPreferences
+          init_args: {trajectories_per_task: 100, bt_temperature: 1.0}
+        pairs: true
 
-Trajectories are stored task-major: row ``task * trajectories_per_task + j``.
+This module owns what every dataset shares:
+
+* ``prepare_data()`` generates the dataset when it is missing and writes it atomically with its
+  manifest (``data/store.py``); an existing one made with another config is an error naming the keys
+  that differ. The directory is ``<root_dir>/<family>-<kind>-<hash of the config>`` unless ``data_dir``.
+* Batches are drawn a whole batch at a time from the memory-mapped arrays (``data/batches.py``): with
+  ``pairs`` a sample also carries another row of the same task, with ``query_labels`` the query states
+  and optimal actions of DPT/DP²T.
+* The evaluation suites of the held-out tasks, built by the setting from the stored evaluation splits.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-from abc import abstractmethod
 from pathlib import Path
 from typing import Any
 
 import lightning as L
-import numpy as np
+import torch
 from torch.utils.data import BatchSampler, DataLoader, RandomSampler, SequentialSampler
 
-from icprl_lightning.contexts import ActionSpec, context_fields
-from icprl_lightning.data.batches import PAIR_FIELDS, ContextBatches
+from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.data.batches import ContextBatches
+from icprl_lightning.data.settings.base import Setting
 from icprl_lightning.data.store import StoredDataset, load_dataset, write_dataset
-from icprl_lightning.data.suites import EvalSuite
+from icprl_lightning.data.suites import BanditSuite, EvalSuite
+from icprl_lightning.families.base import Family
 
 
-class InContextDataModule(L.LightningDataModule):
-    """Base DataModule: see the module docstring. Subclasses define the family-specific parts."""
+class PreferenceDataModule(L.LightningDataModule):
+    """Generated in-context datasets of ``setting`` on ``family``; see the module docstring.
 
-    family_name: str = "family"  # names the dataset directory
-    metric_env: str = "env"  # names the logged validation metrics: val/<metric_env>/...
-    pair_fields: tuple[str, ...] = PAIR_FIELDS  # what ``pairs=True`` serves from another trajectory of the task
+    Args:
+        family: the task family (its ``seed`` fixes the task split and every draw of the dataset).
+        setting: the data recipe.
+        data_dir: the dataset directory; by default one named by the config under ``root_dir``.
+        batch_size: contexts per batch.
+        pairs: serve another context of the same task as ``pair_*`` (ICPO's loss pairs, RewardGen).
+        query_labels: serve query states and their optimal actions (DPT, DP²T).
+        overwrite: regenerate even when the dataset exists.
+        verify_checksums: check every file's SHA-256 when loading.
+        progress: progress bars during generation.
+    """
 
-    def __init__(self, data_dir: str | None = None, root_dir: str = "data", batch_size: int = 32,
-                 pairs: bool = False, query_labels: bool = False, overwrite: bool = False,
-                 verify_checksums: bool = True, progress: bool = True) -> None:
+    def __init__(self, family: Family, setting: Setting, data_dir: str | None = None,
+                 root_dir: str = "data", batch_size: int = 32, pairs: bool = False, query_labels: bool = False,
+                 overwrite: bool = False, verify_checksums: bool = True, progress: bool = True) -> None:
         super().__init__()
+        self.family = family
+        self.setting = setting
         self.data_dir = data_dir
         self.root_dir = root_dir
         self.batch_size = batch_size
@@ -55,52 +74,44 @@ class InContextDataModule(L.LightningDataModule):
         self.progress = progress
         self.dataset: StoredDataset | None = None
 
-    # ---- family-specific -------------------------------------------------------------------------
+    # ---- what the CLI links into the model and the callbacks read ----------------------------------
     @property
-    @abstractmethod
-    def context_kind(self) -> str: ...
+    def context_kind(self) -> str:
+        return self.setting.kind
 
     @property
-    @abstractmethod
-    def state_dim(self) -> int: ...
+    def state_dim(self) -> int:
+        return self.family.obs_dim
 
     @property
-    @abstractmethod
-    def action_spec(self) -> ActionSpec: ...
+    def action_spec(self) -> ActionSpec:
+        return self.family.action_spec
 
     @property
     def context_length(self) -> int:
         """Transitions per context (the model's ``max_context``): the family's horizon."""
         return self.family.horizon
 
-    @abstractmethod
-    def generator_config(self) -> dict[str, Any]:
-        """Everything that determines the dataset's bytes (compared against the manifest on load)."""
-
-    @abstractmethod
-    def generate(self) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
-        """Return ``(splits, info)``; splits need ``train`` and ``val`` with task-major trajectories."""
-
-    @abstractmethod
-    def evaluation_suites(self) -> list[EvalSuite]:
-        """The held-out-task evaluations the rollout callback runs (one per context quality)."""
+    @property
+    def metric_env(self) -> str:
+        return self.family.metric_env
 
     @property
     def trajectories_per_task(self) -> tuple[int, int]:
-        """Trajectories per task in the (train, val) splits."""
-        return self.per_task
+        """Contexts per task in the (train, val) splits."""
+        return self.setting.per_task
 
-    def batch_fields(self) -> tuple[str, ...]:
-        """The stored fields a training sample serves (besides query labels and pairs)."""
-        return context_fields(self.context_kind)
+    def generator_config(self) -> dict[str, Any]:
+        """Everything that determines the dataset's bytes (compared against the manifest on load)."""
+        return {**self.family.config(), **self.setting.config()}
 
-    # ---- shared ------------------------------------------------------------------------------------
+    # ---- storage -------------------------------------------------------------------------------------
     @property
     def path(self) -> Path:
         if self.data_dir is not None:
             return Path(self.data_dir)
         digest = hashlib.sha256(json.dumps(self.generator_config(), sort_keys=True).encode()).hexdigest()[:10]
-        return Path(self.root_dir) / f"{self.family_name}-{self.context_kind}-{digest}"
+        return Path(self.root_dir) / f"{self.family.name}-{self.context_kind}-{digest}"
 
     @property
     def regenerate_hint(self) -> str:
@@ -111,7 +122,7 @@ class InContextDataModule(L.LightningDataModule):
         if self.path.exists() and not self.overwrite:
             load_dataset(self.path, self.generator_config(), verify=False, regenerate_hint=self.regenerate_hint)
             return
-        splits, info = self.generate()
+        splits, info = self.setting.generate(self.family, self.progress)
         write_dataset(self.path, splits, self.generator_config(), info=info, overwrite=True)
         self.overwrite = False  # generated now; later calls (e.g. setup in another stage) reuse it
 
@@ -124,10 +135,11 @@ class InContextDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         self.load()
 
+    # ---- batches -------------------------------------------------------------------------------------
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         per_task = self.trajectories_per_task[0 if split == "train" else 1]
-        data = ContextBatches(self.load()[split], self.batch_fields(), per_task, self.pairs, self.query_labels,
-                              self.pair_fields)
+        data = ContextBatches(self.load()[split], self.setting.batch_fields(), per_task, self.pairs,
+                              self.query_labels, self.setting.pair_fields)
         base = RandomSampler(data) if shuffle else SequentialSampler(data)
         return DataLoader(data, sampler=BatchSampler(base, self.batch_size, drop_last=shuffle), batch_size=None)
 
@@ -136,3 +148,20 @@ class InContextDataModule(L.LightningDataModule):
 
     def val_dataloader(self) -> DataLoader:
         return self._loader("val", shuffle=False)
+
+    # ---- evaluation ----------------------------------------------------------------------------------
+    def evaluation_suites(self) -> list[EvalSuite]:
+        """The held-out in-context rollouts the rollout callback runs (one per context quality)."""
+        return self.setting.evaluation_suites(self.family, self.load())
+
+    def bandit_suites(self) -> list[BanditSuite]:
+        """The held-out weak-regret evaluations (dueling bandits only)."""
+        if not hasattr(self.setting, "bandit_suites"):
+            raise ValueError(f"{type(self.setting).__name__} data has no bandit evaluation; use a BanditDuels setting")
+        return self.setting.bandit_suites(self.family, self.load())
+
+    def heldout_pairs(self) -> dict[str, dict[str, torch.Tensor]]:
+        """Held-out T-PRL pairs per quality, each with another pair of its task (RewardGen's accuracy)."""
+        if not hasattr(self.setting, "heldout_pairs"):
+            raise ValueError("held-out pairs exist in trajectory_preference datasets only")
+        return self.setting.heldout_pairs(self.load())

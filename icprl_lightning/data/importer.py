@@ -1,0 +1,337 @@
+"""Bring your own recorded preference data: check a user's arrays and write them as an icprl dataset.
+
+    icprl import prefs.npz --out data/my_prefs --kind step_preference --n-actions 5 [--val-fraction 0.1]
+    icprl import prefs_dir/ --out data/my_prefs --kind trajectory_preference --action-dim 4 [--seed 0]
+
+``SOURCE`` is an ``.npz`` file or a directory of ``<field>.npy`` files, named as the context's fields
+(``contexts.py``; the table is in ``docs/recorded_data.md``). Every field is checked before anything is
+written — presence, shape, dtype, label values, action range, NaN/inf — and a bad one is a
+``ValueError`` naming the field and what is expected. The arrays are converted to the store's compact
+dtypes (float32 states and continuous actions, int8/int16/int32 action indices, uint8 labels), rows are
+reordered task-major (stable, so each task keeps its recorded order), the tasks are split into train and
+val with a seeded permutation, and the result is written by ``store.write_dataset`` (one ``.npy`` per
+field and split, ``manifest.json`` with checksums, staged and renamed). ``RecordedPreferenceDataModule``
+(``data/recorded.py``) trains any method on it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.data.store import MANIFEST, SCHEMA_VERSION, write_dataset
+
+FORMAT = "icprl_recorded"
+FORMAT_VERSION = 1
+TASK_FIELD = "task_index"
+SOURCE_ROW = "source_row"  # written by the importer: each stored row's row number in the source arrays
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """One field: what it holds (``state``, ``action`` or ``label``) and whether it has a step axis."""
+
+    role: str
+    per_step: bool  # lead axes [N, T] (True) or [N] (False)
+
+
+# The context fields of each supported kind, in the order they are checked (the first defines N, T, S).
+KINDS: dict[str, dict[str, FieldSpec]] = {
+    "step_preference": {"states": FieldSpec("state", True), "actions": FieldSpec("action", True),
+                        "alt_actions": FieldSpec("action", True), "preferred": FieldSpec("label", True)},
+    "trajectory_preference": {"states_a": FieldSpec("state", True), "actions_a": FieldSpec("action", True),
+                              "states_b": FieldSpec("state", True), "actions_b": FieldSpec("action", True),
+                              "preferred": FieldSpec("label", False)},
+}
+# DPT/DP²T's optional supervision: one query state and its optimal action per context step.
+QUERY_FIELDS: dict[str, FieldSpec] = {"query_states": FieldSpec("state", True),
+                                      "optimal_actions": FieldSpec("action", True)}
+
+
+def _expected(spec: FieldSpec, n: int, t: int, s: int, actions: ActionSpec) -> str:
+    lead = f"N={n}, T={t}" if spec.per_step else f"N={n}"
+    if spec.role == "state":
+        return f"[{lead}, S={s}] float"
+    if spec.role == "label":
+        return f"[{lead}] with values in {{0, 1}}"
+    if actions.discrete:
+        return f"[{lead}] integer action indices in [0, {actions.size})"
+    return f"[{lead}, A={actions.size}] float"
+
+
+def _check_finite(name: str, x: np.ndarray, note: str = "") -> None:
+    for bad, test in (("NaN", np.isnan), ("inf", np.isinf)):
+        count = int(test(x).sum())
+        if count:
+            raise ValueError(f"field {name!r} holds {bad} in {count} entries{note}; every value must be finite")
+
+
+def _to_float32(name: str, x: np.ndarray) -> np.ndarray:
+    _check_finite(name, x)
+    with np.errstate(over="ignore"):  # reported below, by field
+        out = x.astype(np.float32)
+    _check_finite(name, out, " after conversion to float32 (values beyond its range)")
+    return out
+
+
+def _index_dtype(n_actions: int) -> type:
+    return np.int8 if n_actions <= 127 else np.int16 if n_actions <= 32767 else np.int32
+
+
+def _check_field(name: str, x: np.ndarray, spec: FieldSpec, n: int, t: int, s: int, actions: ActionSpec,
+                 reference: str) -> np.ndarray:
+    """Check one field against [N, T, ...] of ``reference`` and return it in its stored dtype."""
+    expected = _expected(spec, n, t, s, actions)
+    if x.dtype.kind not in "biuf":
+        raise ValueError(f"field {name!r} must be numeric, shape {expected}; got dtype {x.dtype}")
+    trailing = 1 if spec.role == "state" or (spec.role == "action" and not actions.discrete) else 0
+    ndim = (2 if spec.per_step else 1) + trailing
+    if x.ndim != ndim:
+        raise ValueError(f"field {name!r} must have {ndim} axes, shape {expected}; got shape {list(x.shape)}")
+    if x.shape[0] != n:
+        raise ValueError(f"field {name!r} has {x.shape[0]} rows (N, first axis) but {reference!r} has {n}: "
+                         f"every field needs one row per context, shape {expected}")
+    if spec.per_step and x.shape[1] != t:
+        raise ValueError(f"field {name!r} has {x.shape[1]} steps (T, second axis) but {reference!r} has {t}; "
+                         f"expected shape {expected}")
+    if spec.role == "state":
+        if x.shape[2] != s:
+            raise ValueError(f"field {name!r} has state size {x.shape[2]} but {reference!r} has {s}; "
+                             f"expected shape {expected}")
+        if x.dtype.kind != "f":
+            raise ValueError(f"field {name!r} must be floating point (float32 or float64), shape {expected}; "
+                             f"got dtype {x.dtype}")
+        return _to_float32(name, x)
+    if spec.role == "label":
+        if x.dtype.kind == "f":
+            _check_finite(name, x)
+        bad = np.unique(x[(x != 0) & (x != 1)])
+        if bad.size:
+            raise ValueError(f"field {name!r} must hold only 0 or 1 (1 = the first of the pair won), shape "
+                             f"{expected}; found {bad[:5].tolist()}")
+        return x.astype(np.uint8)
+    if actions.discrete:
+        if x.dtype.kind == "b":
+            raise ValueError(f"field {name!r} is bool; discrete actions must be {expected}")
+        if x.dtype.kind == "f":
+            raise ValueError(f"field {name!r} must hold {expected} (discrete, --n-actions {actions.size}); got "
+                             f"dtype {x.dtype} (for continuous actions pass --action-dim instead)")
+        if x.min() < 0 or x.max() >= actions.size:
+            raise ValueError(f"field {name!r} holds action indices in [{x.min()}, {x.max()}], outside "
+                             f"[0, {actions.size}) of --n-actions {actions.size}")
+        return x.astype(_index_dtype(actions.size))
+    if x.shape[2] != actions.size:
+        raise ValueError(f"field {name!r} has action size {x.shape[2]}, --action-dim is {actions.size}; "
+                         f"expected shape {expected}")
+    if x.dtype.kind != "f":
+        raise ValueError(f"field {name!r} must be floating point, shape {expected} (continuous, --action-dim "
+                         f"{actions.size}); got dtype {x.dtype} (for discrete actions pass --n-actions)")
+    return _to_float32(name, x)
+
+
+def check_arrays(arrays: Mapping[str, np.ndarray], kind: str, actions: ActionSpec) -> dict[str, np.ndarray]:
+    """Validate a user's arrays for ``kind`` and return them in the stored dtypes (rows not reordered)."""
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {sorted(KINDS)}, got {kind!r}")
+    fields = KINDS[kind]
+    known = [*fields, *QUERY_FIELDS, TASK_FIELD]
+    for name in arrays:
+        if name not in known:
+            raise ValueError(f"unknown field {name!r}; a {kind} dataset has fields {list(fields)}, optional "
+                             f"{TASK_FIELD!r} and {list(QUERY_FIELDS)}")
+    for name in fields:
+        if name not in arrays:
+            raise ValueError(f"missing field {name!r}; a {kind} dataset needs {list(fields)}")
+    present = [q for q in QUERY_FIELDS if q in arrays]
+    if len(present) == 1:
+        missing = next(q for q in QUERY_FIELDS if q not in arrays)
+        raise ValueError(f"field {present[0]!r} needs field {missing!r}: query labels come as both or neither")
+    reference = next(iter(fields))  # the first field defines N, T and S
+    x = np.asarray(arrays[reference])
+    if x.ndim != 3:
+        raise ValueError(f"field {reference!r} must have shape [N, T, S] float, got shape {list(x.shape)}")
+    n, t, s = x.shape
+    if n == 0 or t == 0 or s == 0:
+        raise ValueError(f"field {reference!r} is empty (shape {list(x.shape)}): a dataset needs at least one "
+                         "context (N) of at least one step (T) with a state of at least one number (S)")
+    out = {}
+    for name, spec in {**fields, **{q: QUERY_FIELDS[q] for q in present}}.items():
+        out[name] = _check_field(name, np.asarray(arrays[name]), spec, n, t, s, actions, reference)
+    if TASK_FIELD in arrays:
+        task = np.asarray(arrays[TASK_FIELD])
+        if task.ndim != 1 or task.shape[0] != n:
+            raise ValueError(f"field {TASK_FIELD!r} must have shape [N={n}] (one task id per context), got "
+                             f"{list(task.shape)}")
+        if task.dtype.kind not in "iu":
+            raise ValueError(f"field {TASK_FIELD!r} must hold integer task ids, got dtype {task.dtype}")
+        out[TASK_FIELD] = task.astype(np.int64)
+    return out
+
+
+def read_source(source: str | Path) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` file or of a directory's ``*.npy`` files, loaded without unpickling."""
+    path = Path(source)
+    if not path.exists():
+        raise FileNotFoundError(f"no such file or directory: {path}")
+    if path.is_dir():
+        files = {p.stem: p for p in sorted(path.glob("*.npy"))}
+        if not files:
+            raise ValueError(f"{path} holds no .npy files; expected one <field>.npy per field")
+    elif path.suffix == ".npz":
+        files = {}
+    else:
+        raise ValueError(f"{path} is neither an .npz file nor a directory of .npy files")
+    try:
+        if files:
+            return {name: np.load(p, allow_pickle=False) for name, p in files.items()}
+        with np.load(path, allow_pickle=False) as npz:
+            return {name: npz[name] for name in npz.files}
+    except ValueError as e:  # object arrays (which would need pickle) and unreadable files
+        raise ValueError(f"{path}: cannot read the arrays without unpickling ({e}); save plain numeric "
+                         "arrays (np.savez / np.save)") from None
+
+
+def split_rows(task: np.ndarray | None, n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(train rows, val rows), task-major and stable, with a seeded share of the tasks held out for val.
+
+    Without task ids every row is its own task.
+    """
+    if not 0 <= val_fraction < 1:
+        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
+    ids = np.arange(n) if task is None else task
+    tasks = np.unique(ids)
+    n_val = 0 if val_fraction == 0 else max(1, round(val_fraction * len(tasks)))
+    if n_val >= len(tasks):
+        unit = "rows (no task_index given)" if task is None else f"tasks in field {TASK_FIELD!r}"
+        raise ValueError(f"val_fraction {val_fraction} leaves no training data: only {len(tasks)} {unit}; "
+                         "pass val_fraction 0 or import more tasks")
+    val_tasks = tasks[np.random.default_rng(seed).permutation(len(tasks))[:n_val]]
+    is_val = np.isin(ids, val_tasks)
+    order = np.argsort(ids, kind="stable")
+    return order[~is_val[order]], order[is_val[order]]
+
+
+def _rows_per_task(task: np.ndarray) -> dict[str, int]:
+    if task.size == 0:
+        return {"min": 0, "max": 0}
+    counts = np.unique(task, return_counts=True)[1]
+    return {"min": int(counts.min()), "max": int(counts.max())}
+
+
+@dataclass
+class ImportSummary:
+    path: Path
+    kind: str
+    manifest_info: dict[str, Any]
+
+    def __str__(self) -> str:
+        i = self.manifest_info
+        spec = f"{i['action_size']} discrete actions" if i["discrete"] else f"action dim {i['action_size']}"
+        lines = [f"imported {sum(i['contexts'].values())} {self.kind} contexts (T={i['context_length']}, "
+                 f"S={i['state_dim']}, {spec}) into {self.path}"]
+        for split in ("train", "val"):
+            tasks = f", {i['tasks'][split]} tasks" if i["has_task_index"] else ""
+            balance = i["label_balance"][split]
+            labels = "no labels" if balance is None else f"preferred=1 in {100 * balance:.1f}% of labels"
+            lines.append(f"  {split}: {i['contexts'][split]} contexts{tasks}, {labels}")
+        if i["has_task_index"]:
+            r = i["rows_per_task"]["train"]
+            lines.append(f"  rows per task (train): {r['min']}-{r['max']}")
+        else:
+            lines.append(f"  no {TASK_FIELD!r}: each row is its own task (pairs=True will refuse this dataset)")
+        return "\n".join(lines)
+
+
+def _guard_out_dir(out: Path, source: Path | None, overwrite: bool) -> None:
+    """Refuse to replace anything that is not one of our datasets (nor a directory holding the source)."""
+    if not out.exists():
+        return
+    if not overwrite:
+        raise FileExistsError(f"{out} exists; pass --overwrite (overwrite=True) to replace that dataset")
+    if not out.is_dir():
+        raise FileExistsError(f"{out} exists and is not a dataset directory; refusing to replace it")
+    try:
+        manifest = json.loads((out / MANIFEST).read_text())
+    except (OSError, json.JSONDecodeError):
+        manifest = None
+    if not isinstance(manifest, dict) or manifest.get("schema_version") != SCHEMA_VERSION:
+        raise FileExistsError(f"{out} exists and is not an icprl dataset (no {MANIFEST} of schema version "
+                              f"{SCHEMA_VERSION}); refusing to replace it, even with --overwrite")
+    if source is not None and source.resolve().is_relative_to(out.resolve()):
+        raise FileExistsError(f"the source {source} is inside {out}; replacing the dataset would delete it")
+
+
+def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: str | Path,
+                       kind: str = "step_preference", n_actions: int | None = None, action_dim: int | None = None,
+                       val_fraction: float = 0.1, seed: int = 0, overwrite: bool = False) -> ImportSummary:
+    """Check ``source`` (a file, directory or dict of arrays), convert it and write it to ``out_dir``.
+
+    Exactly one of ``n_actions`` (discrete actions, indices in [0, n_actions)) and ``action_dim``
+    (continuous action vectors) is given. Raises ``ValueError`` naming the first bad field.
+    """
+    if (n_actions is None) == (action_dim is None):
+        raise ValueError("pass exactly one of n_actions (discrete actions) and action_dim (continuous actions)")
+    size = n_actions if n_actions is not None else action_dim
+    if size < 1:
+        raise ValueError(f"{'n_actions' if n_actions is not None else 'action_dim'} must be >= 1, got {size}")
+    actions = ActionSpec(discrete=n_actions is not None, size=int(size))
+    out = Path(out_dir)
+    source_path = None if isinstance(source, Mapping) else Path(source)
+    _guard_out_dir(out, source_path, overwrite)
+    arrays = check_arrays(source if isinstance(source, Mapping) else read_source(source), kind, actions)
+    reference = next(iter(KINDS[kind]))
+    n, t, s = arrays[reference].shape
+    task = arrays.get(TASK_FIELD)
+    rows = dict(zip(("train", "val"), split_rows(task, n, val_fraction, seed), strict=True))
+    splits = {split: {**{k: v[r] for k, v in arrays.items()}, SOURCE_ROW: r.astype(np.int64)}
+              for split, r in rows.items()}
+    config = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": kind, "discrete": actions.discrete,
+              "action_size": actions.size, "state_dim": int(s), "context_length": int(t),
+              "has_task_index": task is not None, "has_query_labels": "query_states" in arrays,
+              "val_fraction": val_fraction, "seed": seed}
+    info = {**config, "source": "<arrays>" if source_path is None else str(source_path),
+            "contexts": {k: len(r) for k, r in rows.items()},
+            "label_balance": {k: float(v["preferred"].mean()) if len(v["preferred"]) else None
+                              for k, v in splits.items()}}
+    if task is not None:
+        info["tasks"] = {k: int(np.unique(v[TASK_FIELD]).size) for k, v in splits.items()}
+        info["rows_per_task"] = {k: _rows_per_task(v[TASK_FIELD]) for k, v in splits.items()}
+        info["val_tasks"] = np.unique(splits["val"][TASK_FIELD]).tolist()
+    write_dataset(out, splits, config, info=info, overwrite=True)
+    return ImportSummary(path=out, kind=kind, manifest_info=info)
+
+
+def main(argv: list[str] | None = None) -> ImportSummary:
+    """``icprl import``: see the module docstring."""
+    parser = argparse.ArgumentParser(prog="icprl import", description="Check recorded preference arrays and "
+                                     "write them as an icprl dataset (format: docs/recorded_data.md).")
+    parser.add_argument("source", help="an .npz file or a directory of <field>.npy files")
+    parser.add_argument("--out", required=True, help="the dataset directory to write")
+    parser.add_argument("--kind", required=True, choices=sorted(KINDS))
+    actions = parser.add_mutually_exclusive_group(required=True)
+    actions.add_argument("--n-actions", type=int, help="discrete actions: indices in [0, n_actions)")
+    actions.add_argument("--action-dim", type=int, help="continuous actions: vectors of this size")
+    parser.add_argument("--val-fraction", type=float, default=0.1, help="share of the tasks held out for val")
+    parser.add_argument("--seed", type=int, default=0, help="seeds the train/val task split")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing icprl dataset at --out")
+    args = parser.parse_args(argv)
+    try:
+        summary = import_preferences(args.source, args.out, args.kind, n_actions=args.n_actions,
+                                     action_dim=args.action_dim, val_fraction=args.val_fraction, seed=args.seed,
+                                     overwrite=args.overwrite)
+    except (ValueError, FileExistsError, FileNotFoundError) as e:
+        parser.exit(2, f"icprl import: error: {e}\n")
+    print(summary)
+    return summary
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,182 @@
+"""Train any preference method on recorded preference data: a LightningDataModule over an imported dataset.
+
+    icprl import prefs.npz --out data/my_prefs --kind step_preference --n-actions 5
+    icprl fit --config configs/recorded_icpo.yaml --data.init_args.data_dir data/my_prefs
+
+The dataset is what ``icprl import`` (``data/importer.py``) writes: the store's layout (``data/store.py``)
+with ``train`` and ``val`` splits, task-major rows, and a manifest whose config says the context kind,
+the state size, the action spec and the context length. This DataModule exposes them as ``context_kind``,
+``state_dim``, ``action_spec`` and ``context_length``, so the CLI links the model's sizes from the data.
+Batches are whole-batch fancy indices of the memory-mapped arrays (``ContextBatches``):
+
+* ``pairs=True`` adds the comparisons of *another* row of the same task as ``pair_*`` fields (ICPO's
+  default ``pair_source: other_trajectory``, RewardGen's ``other_pair``). Recorded tasks may hold any
+  number of rows, so the other row is drawn among that task's rows; every task needs at least two.
+* ``query_labels=True`` serves ``query_states`` / ``optimal_actions`` (DPT/DP²T), if they were imported.
+
+There is no simulator behind recorded data, so ``evaluation_suites()`` is empty: validation reports the
+methods' losses on the held-out tasks of the ``val`` split, and deployment is through ``load_agent``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
+
+from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.data.batches import ContextBatches, to_tensor
+from icprl_lightning.data.importer import FORMAT, KINDS, QUERY_FIELDS, TASK_FIELD
+from icprl_lightning.data.store import DatasetError, StoredDataset, load_dataset
+
+if TYPE_CHECKING:  # a type only: recorded data never builds a suite, so it needs no evaluation code
+    from icprl_lightning.data.suites import EvalSuite
+
+SPLITS = ("train", "val")
+
+
+class RecordedBatches(Dataset):
+    """``ContextBatches`` of one split, plus ``pair_*`` fields from another row of each row's task.
+
+    ``task_index`` must be sorted (task-major, as the importer writes it); tasks may differ in size.
+    """
+
+    def __init__(self, arrays: dict[str, np.ndarray], fields: tuple[str, ...], pairs: bool,
+                 query_labels: bool, split: str) -> None:
+        self.rows = ContextBatches(arrays, fields, trajectories_per_task=1, pairs=False, query_labels=query_labels)
+        self.arrays = arrays
+        self.fields = fields
+        self.pairs = pairs
+        if pairs:
+            task = np.asarray(arrays[TASK_FIELD])
+            if np.any(np.diff(task) < 0):
+                raise DatasetError(f"split {split!r}: rows are not task-major (task_index not sorted); "
+                                   "write the dataset with icprl import")
+            _, first, inverse, counts = np.unique(task, return_index=True, return_inverse=True, return_counts=True)
+            if len(task) and counts.min() < 2:
+                few = np.unique(task[counts[inverse] < 2])
+                raise ValueError(
+                    f"pairs=True scores each context against another row of the same task, but in split "
+                    f"{split!r} {len(few)} task(s) have a single row (task_index {few[:10].tolist()}); "
+                    "re-import with at least two rows per task, or set data.init_args.pairs false "
+                    "(ICPO: model.init_args.pair_source context)")
+            self.start = first[inverse]  # (N,) first row of each row's task
+            self.count = counts[inverse]  # (N,) rows of each row's task
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, index: list[int]) -> dict[str, torch.Tensor]:
+        batch = self.rows[index]
+        if self.pairs:
+            idx = np.sort(np.asarray(index))  # the order ContextBatches serves the rows in
+            count = self.count[idx]
+            shift = 1 + (torch.rand(len(idx)).numpy() * (count - 1)).astype(np.int64)  # uniform in [1, count)
+            other = self.start[idx] + (idx - self.start[idx] + shift) % count
+            for k in self.fields:
+                batch[f"pair_{k}"] = to_tensor(self.arrays[k][other])
+        return batch
+
+
+class RecordedPreferenceDataModule(L.LightningDataModule):
+    """Recorded preference data written by ``icprl import``; see the module docstring.
+
+    Args:
+        data_dir: the dataset directory (``icprl import ... --out DIR``).
+        batch_size: contexts per batch.
+        pairs: also serve another row of the same task as ``pair_*`` (ICPO, RewardGen, ICRG).
+        query_labels: also serve ``query_states`` / ``optimal_actions`` (DPT, DP²T).
+        verify_checksums: check every file's SHA-256 against the manifest in ``setup``.
+    """
+
+    metric_env = "recorded"
+
+    def __init__(self, data_dir: str, batch_size: int = 32, pairs: bool = False, query_labels: bool = False,
+                 verify_checksums: bool = True) -> None:
+        super().__init__()
+        self.data_dir = data_dir
+        self.batch_size = batch_size
+        self.pairs = pairs
+        self.query_labels = query_labels
+        self.verify_checksums = verify_checksums
+        self.dataset: StoredDataset = load_dataset(self.path, verify=False, regenerate_hint=self.hint)
+        self._verified = not verify_checksums
+        self.config = self.dataset.manifest.get("config", {})
+        if self.config.get("format") != FORMAT or self.config.get("kind") not in KINDS:
+            raise DatasetError(f"{self.path} is not a recorded preference dataset (its manifest config has format "
+                               f"{self.config.get('format')!r}, kind {self.config.get('kind')!r}). To fix: "
+                               f"{self.hint}")
+        missing = [s for s in SPLITS if s not in self.dataset.splits]
+        if missing:
+            raise DatasetError(f"{self.path} has no {missing} split. To fix: {self.hint}")
+        if query_labels and not self.config.get("has_query_labels"):
+            raise ValueError(f"query_labels=True serves {list(QUERY_FIELDS)}, but {self.path} was imported "
+                             "without them; add both fields to the source and re-import, or pick a method that "
+                             "needs no optimal-action labels (ICPO, RewardGen)")
+        if pairs and not self.config.get("has_task_index"):
+            raise ValueError(f"pairs=True needs to know which rows share a task, but {self.path} was imported "
+                             f"without field {TASK_FIELD!r}; add it to the source and re-import, or set "
+                             "data.init_args.pairs false (ICPO: model.init_args.pair_source context)")
+        self._batches = {split: self._make_batches(split) for split in SPLITS}  # checks rows per task now
+
+    @property
+    def path(self) -> Path:
+        return Path(self.data_dir)
+
+    @property
+    def hint(self) -> str:
+        return f"import the data again: icprl import SOURCE --out {self.data_dir} --kind KIND --overwrite"
+
+    @property
+    def context_kind(self) -> str:
+        return self.config["kind"]
+
+    @property
+    def state_dim(self) -> int:
+        return int(self.config["state_dim"])
+
+    @property
+    def action_spec(self) -> ActionSpec:
+        return ActionSpec(discrete=bool(self.config["discrete"]), size=int(self.config["action_size"]))
+
+    @property
+    def context_length(self) -> int:
+        """Steps per context (T; for trajectory pairs the pair's length H): the model's ``max_context``."""
+        return int(self.config["context_length"])
+
+    def batch_fields(self) -> tuple[str, ...]:
+        return tuple(KINDS[self.context_kind])
+
+    def evaluation_suites(self) -> list[EvalSuite]:
+        """No simulator behind recorded data: nothing to roll out."""
+        return []
+
+    def _make_batches(self, split: str) -> RecordedBatches:
+        return RecordedBatches(self.dataset[split], self.batch_fields(), self.pairs, self.query_labels, split)
+
+    def setup(self, stage: str | None = None) -> None:
+        model = self.trainer.lightning_module if self.trainer is not None else None
+        kind = getattr(model, "context_kind", None)  # the policy's; ICRG's (reward_trajectory) is not its data's
+        if kind in KINDS and kind != self.context_kind:
+            raise ValueError(f"the model conditions on {kind} contexts but {self.path} holds {self.context_kind} "
+                             "data; pick a method (or model.init_args.context_kind) for that kind")
+        if not self._verified:  # re-open with every checksum checked, once
+            self.dataset = load_dataset(self.path, verify=True, regenerate_hint=self.hint)
+            self._batches = {split: self._make_batches(split) for split in SPLITS}
+            self._verified = True
+
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        data = self._batches[split]
+        base = RandomSampler(data) if shuffle else SequentialSampler(data)
+        drop_last = shuffle and len(data) >= self.batch_size  # a dataset smaller than a batch is one batch
+        return DataLoader(data, sampler=BatchSampler(base, self.batch_size, drop_last=drop_last), batch_size=None)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)

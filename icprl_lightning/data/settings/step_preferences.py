@@ -1,0 +1,108 @@
+"""I-PRL step preferences, for every family (paper, section 4.1 and appendix "Pretraining Data Generation").
+
+At every step h of a context one action comes from each of two policies, in shuffled slots so that a
+slot carries no information, and the label is drawn from the Bradley–Terry model on the oracle's
+utility (A* up to a per-state constant), eq. (i-prl-pref):
+
+    P(y_h = 1 | s_h, a_h, a'_h) = σ((A*(s_h, a_h) − A*(s_h, a'_h)) / bt_temperature).
+
+The knobs are the paper's choices made explicit:
+
+* ``first_policy``: the policy of one side of every pair — ``"uniform"`` (the paper's DarkRoom recipe)
+  or a calibrated policy's name (``"low"``, Meta-World's 20% policy); the other side is the context's
+  own quality (training rows: ``train_policy``);
+* ``bt_temperature``: the label temperature (paper: 1; Meta-World's per-step differences need ≈ 0.02);
+* ``next_state_follows``: which action the trajectory continues with — ``"preferred"`` (the paper's),
+  ``"rejected"``, ``"first"`` (the ``first_policy`` side) or ``"second"``. With the paper's choice the
+  state trajectory walks towards the goal, so a model can read the task from the states alone and
+  ignore the labels; ``"first"`` with a uniform first policy makes the states uninformative.
+
+The context arrays are ``states`` [N, H, S] float32, ``actions`` / ``alt_actions`` (the two slots),
+``preferred`` [N, H] uint8 (1 = ``actions`` won), plus the oracle's query labels for DPT/DP²T.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from icprl_lightning.data.settings.base import MDPSetting, chunks, steps
+from icprl_lightning.families.base import TaskFamily
+from icprl_lightning.preferences import label_agreement, sample_preferences
+
+FOLLOW = ("preferred", "rejected", "first", "second")
+
+
+class StepPreferences(MDPSetting):
+    """I-PRL contexts; see the module docstring. The other arguments as ``MDPSetting``."""
+
+    kind = "step_preference"
+
+    def __init__(self, first_policy: str = "uniform", bt_temperature: float = 1.0,
+                 next_state_follows: str = "preferred", **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        if first_policy != "uniform" and first_policy not in self.policy_names():
+            raise ValueError(f"first_policy must be 'uniform' or one of {list(self.policy_names())}, "
+                             f"got {first_policy!r}")
+        if next_state_follows not in FOLLOW:
+            raise ValueError(f"next_state_follows must be one of {list(FOLLOW)}, got {next_state_follows!r}")
+        if not bt_temperature > 0:
+            raise ValueError(f"bt_temperature must be > 0, got {bt_temperature}")
+        self.first_policy = first_policy
+        self.bt_temperature = bt_temperature
+        self.next_state_follows = next_state_follows
+
+    def knobs(self) -> dict[str, Any]:
+        return {"first_policy": self.first_policy, "bt_temperature": self.bt_temperature,
+                "next_state_follows": self.next_state_follows}
+
+    def contexts(self, family: TaskFamily, tasks: np.ndarray, quality: np.ndarray, mixing: np.ndarray,
+                 rng: np.random.Generator, evaluation: bool, progress: bool, description: str
+                 ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        n, horizon, oracle = len(tasks), family.horizon, family.oracle
+        spec = family.action_spec
+        act_shape = () if spec.discrete else (spec.size,)
+        states = np.empty((n, horizon, family.obs_dim), dtype=np.float32)
+        pair = np.empty((2, n, horizon, *act_shape), dtype=family.action_dtype)
+        optimal = np.empty((n, horizon, *act_shape), dtype=family.action_dtype)
+        preferred = np.empty((n, horizon), dtype=np.uint8)
+        utility = np.empty((2, n, horizon))
+        second_p = mixing[quality]
+        first_p = None if self.first_policy == "uniform" else mixing[self.policy_names().index(self.first_policy)]
+        for rows, label in chunks(n, family.max_parallel, description):
+            m = rows.stop - rows.start
+            with family.context_rollouts(tasks[rows], rng) as roll:
+                for h in steps(horizon, label, progress):
+                    state = roll.oracle_state()
+                    first = (oracle.uniform_actions(state, rng) if first_p is None
+                             else oracle.behavior_actions(state, np.full(m, first_p), rng))
+                    second = oracle.behavior_actions(state, second_p[rows], rng)
+                    swap = _column(rng.random(m) < 0.5, first.ndim)
+                    both = np.stack([np.where(swap, second, first), np.where(swap, first, second)])
+                    u = oracle.utility(state, both)  # [2, m]
+                    y = sample_preferences(u[0], u[1], self.bt_temperature, rng)
+                    states[rows, h], pair[:, rows, h], optimal[rows, h] = roll.observations(), both, \
+                        oracle.optimal_actions(state)
+                    preferred[rows, h], utility[:, rows, h] = y, u
+                    roll.step(self._next_action(y, both, first, second))
+        stats = {"label_agreement": label_agreement(utility[0], utility[1], preferred),
+                 "tie_fraction": float(np.mean(utility[0] == utility[1]))}
+        arrays = {"states": states, "actions": pair[0], "alt_actions": pair[1], "preferred": preferred}
+        arrays.update(oracle.query_labels(tasks, states, optimal, horizon, rng))
+        return arrays, stats
+
+    def _next_action(self, y: np.ndarray, both: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+        if self.next_state_follows == "first":
+            return first
+        if self.next_state_follows == "second":
+            return second
+        won = _column(y == 1, both.ndim - 1)
+        if self.next_state_follows == "preferred":
+            return np.where(won, both[0], both[1])
+        return np.where(won, both[1], both[0])
+
+
+def _column(mask: np.ndarray, ndim: int) -> np.ndarray:
+    """A per-row mask [N] shaped to broadcast against actions of ``ndim`` dims ([N] or [N, A])."""
+    return mask.reshape(-1, *[1] * (ndim - 1))

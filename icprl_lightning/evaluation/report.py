@@ -1,0 +1,216 @@
+"""Reporting held-out results: rich tables (callbacks), markdown, JSON and figures (``icprl evaluate``).
+
+Two kinds of result, both the paper's metrics:
+
+* MDP families (DarkRoom, Meta-World Reach): the latent return on held-out tasks (and success rate
+  where the environment reports it), mean ± sem over tasks, per context quality, with the behavior
+  policy and the optimal/expert policy beside the methods (``results_table``, ``rollout_markdown``,
+  ``rollout_figure``);
+* dueling bandits: weak regret min(R* − R(a), R* − R(a')) vs context size (paper, appendix "Dueling
+  Bandit Experiments"), at h = H and averaged over h, mean ± sem over problems, per context source,
+  with DTS and the behaviour policy beside the methods (``regret_table``, ``regret_markdown``,
+  ``regret_figure``).
+
+Figures use ``matplotlib.figure.Figure`` directly, so importing this module never changes the
+matplotlib backend of the caller.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+MDP_METRICS = ("return", "normalized_return", "success")
+REGRET_METRICS = (("weak_regret", "weak regret at h = H"), ("weak_regret_auc", "weak regret, mean over h = 1..H"))
+COLUMNS = (("return", "return"), ("normalized", "normalized_return"), ("success", "success"),
+           ("behavior return", "behavior_return"), ("behavior normalized", "behavior_normalized_return"),
+           ("behavior success", "behavior_success"),
+           ("optimal return", "optimal_return"), ("expert return", "expert_return"))
+
+
+# ---- terminal tables (the callbacks) ---------------------------------------------------------------
+
+def show_table(table: Table) -> None:
+    """Print to stderr; a log file (not a terminal) gets 140 columns instead of wrapping at 80."""
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        console.width = 140
+    console.print(table)
+
+
+def _pm(value: float | None, sem: float | None, fmt: str = ".3g", sem_fmt: str = ".2g") -> str:
+    if value is None:
+        return ""
+    return f"{value:{fmt}}" + ("" if sem is None or not np.isfinite(sem) else f" ± {sem:{sem_fmt}}")
+
+
+def results_table(results: dict[str, dict[str, float]], title: str) -> Table:
+    """One row per ``val/<env>/<quality>`` prefix; the columns any of them reports (± sem where known)."""
+    shown = [(head, key) for head, key in COLUMNS if any(key in r for r in results.values())]
+    table = Table(title=title)
+    table.add_column("")
+    for head, _ in shown:
+        table.add_column(head, justify="right")
+    for prefix, r in results.items():
+        table.add_row(prefix.removeprefix("val/"), *(_pm(r.get(key), r.get(f"{key}_sem")) for _, key in shown))
+    return table
+
+
+def regret_table(results: dict[str, dict[str, dict[str, float]]], title: str) -> Table:
+    """Bandits: one row per context source, final and mean-over-h weak regret of each method (± sem)."""
+    methods = list(dict.fromkeys(m for per_source in results.values() for m in per_source))
+    table = Table(title=title)
+    table.add_column("context source")
+    for method in methods:
+        table.add_column(f"{method} final", justify="right", no_wrap=True)
+        table.add_column(f"{method} AUC", justify="right", no_wrap=True)
+    for source, per_source in results.items():
+        cells = []
+        for method in methods:
+            r = per_source.get(method, {})
+            cells += [_pm(r.get(k), r.get(f"{k}_sem"), ".3f", ".3f") for k in ("weak_regret", "weak_regret_auc")]
+        table.add_row(source, *cells)
+    return table
+
+
+# ---- MDP outputs (icprl evaluate) ------------------------------------------------------------------
+
+def reference_rows(first: dict[str, dict]) -> dict[str, dict[str, dict[str, float]]]:
+    """The behavior and optimal/expert policies' numbers from the dataset manifest, per quality.
+
+    ``first`` maps quality -> a run's row holding the suite's ``reference`` dict.
+    """
+    behavior, best = {}, {}
+    for q, row in first.items():
+        ref = row["reference"]
+        behavior[q] = {"return": ref["behavior_return"], "return_sem": ref.get("behavior_return_sem", 0.0)}
+        if "behavior_success" in ref:
+            behavior[q]["success"] = ref["behavior_success"]
+        if "behavior_normalized_return" in ref:
+            behavior[q]["normalized_return"] = ref["behavior_normalized_return"]
+        if "optimal_return" in ref:
+            best[q] = {"return": ref["optimal_return"], "return_sem": 0.0, "normalized_return": 1.0}
+            behavior[q]["normalized_return"] = ref["behavior_return"] / ref["optimal_return"]
+        else:
+            best[q] = {"return": ref["expert_return"], "return_sem": 0.0, "normalized_return": 1.0,
+                       "success": ref["expert_success"]}
+    optimal = "optimal_return" in next(iter(first.values()))["reference"]
+    return {"behavior": behavior, "optimal" if optimal else "expert": best}
+
+
+def baseline_row(path: str | Path, qualities: list[str]) -> dict[str, dict[str, float]]:
+    """A from-scratch baseline's JSON (``baselines/``) as the same row for every quality."""
+    result = json.loads(Path(path).read_text())
+    row = {}
+    for metric in MDP_METRICS:
+        if metric in result:
+            row[metric], row[f"{metric}_sem"] = result[metric]["mean"], result[metric]["sem"]
+    return {q: dict(row) for q in qualities}
+
+
+def cell(res: dict[str, float], metric: str, digits: int) -> str:
+    if metric not in res:
+        return "–"
+    sem = res.get(f"{metric}_sem")
+    return f"{res[metric]:.{digits}f}" + (f" ± {sem:.{digits}f}" if sem else "")
+
+
+def _groups(payload: dict) -> tuple[dict[str, dict], list[str], list[str]]:
+    """(results, the deployed runs' names, the columns: qualities or sources, in the first run's order)."""
+    results = payload["results"]
+    names = [spec.partition("=")[0] for spec in payload["runs"]]
+    return results, names, list(results[names[0]])
+
+
+def _markdown_tables(results: dict, columns: list[str], metrics: list[tuple[str, str, int]], head: str) -> list[str]:
+    lines = []
+    for metric, title, digits in metrics:
+        lines += [f"{title}:", "", f"| {head} | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
+        lines += [f"| {name} | " + " | ".join(cell(res.get(c, {}), metric, digits) for c in columns) + " |"
+                  for name, res in results.items()]
+        lines.append("")
+    return lines
+
+
+def rollout_markdown(payload: dict) -> str:
+    """Per metric a table: one row per method and reference, one column per context quality."""
+    results, names, qualities = _groups(payload)
+    metrics = [(m, m.replace("_", " "), 1 if m == "return" else 2) for m in MDP_METRICS
+               if any(m in results[n][q] for n in names for q in qualities)]
+    lines = _markdown_tables(results, qualities, metrics, "method")
+    lines.append(f"Behavior and {'optimal' if 'optimal' in results else 'expert'} rows: the dataset of "
+                 f"{payload['reference_rows_from']}. Seeds {payload['seeds']}, actions: {payload['actions']}."
+                 + (" Contexts from another held-out task." if payload["other_task_contexts"] else ""))
+    return "\n".join(lines) + "\n"
+
+
+def rollout_figure(payload: dict, path: str | Path) -> None:
+    """Bars per quality (return, and success where reported), one per method, ± sem over held-out tasks."""
+    from matplotlib.figure import Figure
+
+    results, names, qualities = _groups(payload)
+    shown = [m for m in ("return", "success") if any(m in results[n][q] for n in names for q in qualities)]
+    fig = Figure(figsize=(5.5 * len(shown) + 2.5, 3.6), layout="tight")
+    axes = fig.subplots(1, len(shown), squeeze=False)
+    width = 0.8 / len(results)
+    for ax, metric in zip(axes[0], shown, strict=True):
+        for i, (name, res) in enumerate(results.items()):
+            xs = np.arange(len(qualities)) + i * width
+            ax.bar(xs, [res[q].get(metric, np.nan) for q in qualities], width,
+                   yerr=[res[q].get(f"{metric}_sem", 0.0) or 0.0 for q in qualities], label=name, capsize=2)
+        ax.set_xticks(np.arange(len(qualities)) + width * (len(results) - 1) / 2, qualities)
+        ax.set_xlabel("context quality")
+        ax.set_ylabel(f"{metric.replace('_', ' ')} on held-out tasks")
+    axes[0][0].set_title(f"{payload['title']}: mean ± sem over held-out tasks", fontsize=9)
+    axes[0][-1].legend(fontsize=7, bbox_to_anchor=(1.02, 1), loc="upper left")
+    fig.savefig(path, dpi=120)
+
+
+# ---- bandit outputs (icprl evaluate) ---------------------------------------------------------------
+
+def regret_markdown(payload: dict) -> str:
+    """Per statistic (h = H, mean over h) a table: one row per method, DTS and behaviour; one column per source."""
+    results, _, sources = _groups(payload)
+    lines = _markdown_tables(results, sources, [(m, t, 3) for m, t in REGRET_METRICS], "method")
+    lines.append(f"Weak regret min(R* − R(a), R* − R(a')), mean ± sem over {payload['n_eval_problems']} held-out "
+                 f"problems, H = {payload['horizon']}. DTS and behaviour rows: the dataset of "
+                 f"{payload['reference_rows_from']}. Seeds {payload['seeds']}, actions: {payload['actions']}.")
+    return "\n".join(lines) + "\n"
+
+
+def regret_figure(payload: dict, path: str | Path) -> None:
+    """One panel per context source: weak regret vs context size h, mean ± sem band per method."""
+    from matplotlib.figure import Figure
+
+    curves = payload["curves"]
+    sources = list(next(iter(curves.values())))
+    fig = Figure(figsize=(4.5 * len(sources), 3.6), layout="tight")
+    axes = fig.subplots(1, len(sources), sharey=True, squeeze=False)
+    for ax, source in zip(axes[0], sources, strict=True):
+        for name, per_source in curves.items():
+            mean, sem = np.asarray(per_source[source]["mean"]), np.asarray(per_source[source]["sem"])
+            h = np.arange(1, len(mean) + 1)
+            ax.plot(h, mean, label=name)
+            ax.fill_between(h, mean - sem, mean + sem, alpha=0.25)
+        ax.set_title(f"{source} contexts")
+        ax.set_xlabel("context size h")
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_ylabel(f"weak regret (mean ± sem, {payload['n_eval_problems']} problems)")
+    axes[0, 0].legend()
+    fig.suptitle(payload["title"], fontsize=9)
+    fig.savefig(path, dpi=120)
+
+
+def write_outputs(payload: dict[str, Any], out: str | Path) -> None:
+    """``<out>.json`` (all numbers), ``<out>.md`` (the tables) and ``<out>.png`` (the figure)."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(payload, indent=2))
+    bandit = "curves" in payload
+    out.with_suffix(".md").write_text(regret_markdown(payload) if bandit else rollout_markdown(payload))
+    (regret_figure if bandit else rollout_figure)(payload, out.with_suffix(".png"))

@@ -1,0 +1,122 @@
+"""In-context episodes on held-out MDP tasks through the public ``Agent``, and their summary.
+
+The paper's performance metric (section 6): the latent cumulative reward of an episode in an unseen
+task, with the agent conditioned on a fixed offline context from that task (no parameter updates, no
+reward observed). Returns are averaged per task, then summarized as mean ± standard error over tasks.
+``success`` (where the environment reports it, Meta-World Reach) is the share of episodes whose success
+flag was raised at some step, metaworld's criterion.
+
+* ``rollout_in_context(agent, suite, seed)`` — one episode per context of an ``EvalSuite``;
+* ``rollout_seeds(make_agent, suite, seeds)`` — the same for several episode seeds, concatenated;
+* ``episode_stats`` / ``summarize`` — mean ± sem over held-out tasks (``summarize`` adds the suite's
+  behavior and optimal/expert references);
+* ``other_task_contexts(suite)`` — each episode conditioned on another held-out task's context, which
+  measures how much a policy uses its context.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+
+from icprl_lightning.data.suites import EvalSuite
+from icprl_lightning.metrics import mean_sem, per_task_mean
+
+
+class AgentLike(Protocol):
+    def reset(self, context: Any) -> None: ...
+
+    def act(self, obs: torch.Tensor) -> torch.Tensor: ...
+
+
+@torch.no_grad()
+def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0) -> dict[str, np.ndarray]:
+    """Run one episode per context; returns per-episode ``return`` [B] (and ``success`` when the env reports it).
+
+    ``success`` is 1 for an episode whose ``info["success"]`` was true at any step (metaworld's criterion).
+    The env is closed afterwards.
+    """
+    env = suite.make_env()
+    try:
+        obs, _ = env.reset(seed=seed)
+        agent.reset(suite.context)
+        total = np.zeros(env.num_envs)
+        success = np.zeros(env.num_envs, dtype=bool)
+        reports_success = False
+        for _ in range(suite.horizon):
+            actions = agent.act(torch.as_tensor(obs, dtype=torch.float32))
+            obs, reward, terminated, truncated, info = env.step(actions.cpu().numpy())
+            total += reward
+            if "success" in info:
+                reports_success = True
+                success |= np.asarray(info["success"], dtype=bool)
+            if np.all(terminated | truncated):
+                break
+    finally:
+        # Vector envs may hold worker processes (Meta-World); release them now, not at garbage collection.
+        if hasattr(env, "close"):
+            env.close()
+    out = {"return": total}
+    if reports_success:
+        out["success"] = success.astype(np.float64)
+    return out
+
+
+def rollout_seeds(make_agent: Callable[[int], AgentLike], suite: EvalSuite, seeds: Sequence[int]
+                  ) -> dict[str, np.ndarray]:
+    """Episodes for every seed (a fresh ``make_agent(seed)`` each), concatenated seed-major: [len(seeds) · B].
+
+    Every seed is one more episode per context (new start state, new action samples). ``normalized_return``
+    is added per seed, because a suite's ``normalize`` maps its own B episodes (per-task references).
+    """
+    episodes: dict[str, list[np.ndarray]] = {}
+    for seed in seeds:
+        result = rollout_in_context(make_agent(seed), suite, seed=seed)
+        if suite.normalize is not None:
+            result["normalized_return"] = suite.normalize(result["return"])
+        for name, values in result.items():
+            episodes.setdefault(name, []).append(values)
+    return {name: np.concatenate(values) for name, values in episodes.items()}
+
+
+def episode_stats(suite: EvalSuite, episodes: dict[str, np.ndarray]) -> dict[str, float]:
+    """Mean ± sem over held-out tasks of each per-episode metric (``<name>`` and ``<name>_sem``).
+
+    ``episodes`` hold B or n · B values (n seeds, seed-major as ``rollout_seeds`` returns them); each
+    task's episodes are averaged first. ``normalized_return`` is computed when missing and normalizable.
+    """
+    n_seeds, rest = divmod(len(episodes["return"]), len(suite.task_index))
+    if rest or n_seeds == 0:
+        raise ValueError(f"{len(episodes['return'])} episodes are not a multiple of the suite's "
+                         f"{len(suite.task_index)} contexts")
+    episodes = dict(episodes)
+    if suite.normalize is not None and "normalized_return" not in episodes:
+        episodes["normalized_return"] = np.concatenate([suite.normalize(r)
+                                                        for r in np.split(episodes["return"], n_seeds)])
+    tasks = np.tile(suite.task_index, n_seeds)
+    out: dict[str, float] = {}
+    for name, values in episodes.items():
+        out[name], out[f"{name}_sem"] = mean_sem(per_task_mean(values, tasks))
+    return out
+
+
+def summarize(suite: EvalSuite, episodes: dict[str, np.ndarray]) -> dict[str, float]:
+    """Mean ± sem over held-out tasks of return (normalized too) and success, plus the references."""
+    return {**episode_stats(suite, episodes), **suite.reference}
+
+
+def other_task_contexts(suite: EvalSuite) -> EvalSuite:
+    """The suite with each episode given a context of the *next* held-out task (same quality).
+
+    Rows are task-major with the same number of episodes per task, so rolling every context field by that
+    number moves each task's contexts to the following task. A policy that uses its context should lose
+    return; one that ignores it should not.
+    """
+    per_task = int(np.bincount(suite.task_index).max())
+    if np.any(np.roll(suite.task_index, per_task) == suite.task_index):
+        raise ValueError("other-task contexts need task-major rows with the same count per task")
+    return replace(suite, context=suite.context.map(lambda x: torch.roll(x, per_task, dims=0)))

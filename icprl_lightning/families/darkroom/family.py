@@ -1,0 +1,148 @@
+"""DarkRoom as a ``TaskFamily`` (paper, appendix "MDP Environment Details"): goal cells of a 10×10 grid,
+5 actions, H = 100; 80 goals train and 20 are held out, the split fixed by ``seed``.
+
+Contexts are not episodes: an I-PRL or reward context holds H steps of the behavior process, and with
+``terminate_on_goal`` a trajectory that enters the goal continues from a fresh random start (paper:
+"every context holds H comparisons"). ``context_rollouts`` is that process, drawing starts from the
+dataset's generator; ``episode_rollouts`` are episodes of ``DarkRoomVectorEnv`` (T-PRL pairs, references).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.families.base import TaskFamily
+from icprl_lightning.families.darkroom.env import N_ACTIONS, DarkRoomState, DarkRoomVectorEnv, step_reward, transition
+from icprl_lightning.families.darkroom.oracle import DarkRoomOracle, calibrate_mixing, rollout_returns
+from icprl_lightning.metrics import mean_sem, per_task_mean
+
+
+@dataclass(frozen=True)
+class DarkRoomFamily(TaskFamily):
+    """The task family: grid geometry, horizon and the seeded train/test split of goal cells."""
+
+    size: int = 10
+    horizon: int = 100
+    n_train_tasks: int = 80
+    n_test_tasks: int = 20
+    terminate_on_goal: bool = False
+    seed: int = 0
+
+    name = "darkroom"
+    metric_env = "darkroom"
+    task_name = "goals"
+    obs_dim = 2
+    n_actions = N_ACTIONS
+    max_parallel = None  # integer arrays: every trajectory of a split steps at once
+
+    def __post_init__(self) -> None:
+        if self.n_train_tasks + self.n_test_tasks > self.size**2:
+            raise ValueError(f"{self.n_train_tasks} + {self.n_test_tasks} tasks need more than the "
+                             f"{self.size**2} goal cells of a {self.size}x{self.size} grid")
+
+    @property
+    def action_spec(self) -> ActionSpec:
+        return ActionSpec(discrete=True, size=N_ACTIONS)
+
+    @cached_property
+    def oracle(self) -> DarkRoomOracle:
+        return DarkRoomOracle(self)
+
+    @cached_property
+    def _goal_permutation(self) -> np.ndarray:
+        cells = np.stack(np.divmod(np.arange(self.size**2), self.size), axis=-1)
+        return cells[np.random.default_rng(self.seed).permutation(len(cells))]
+
+    @property
+    def train_goals(self) -> np.ndarray:
+        return self._goal_permutation[: self.n_train_tasks].copy()
+
+    @property
+    def test_goals(self) -> np.ndarray:
+        n = self.n_train_tasks
+        return self._goal_permutation[n : n + self.n_test_tasks].copy()
+
+    def tasks(self, split: str) -> np.ndarray:
+        if split not in ("train", "test"):
+            raise ValueError(f"split must be 'train' or 'test', got {split!r}")
+        return self.train_goals if split == "train" else self.test_goals
+
+    def sample_starts(self, goals: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Uniform start cells for each goal; when episodes end at the goal, never start on it."""
+        starts = rng.integers(0, self.size, size=goals.shape)
+        if self.terminate_on_goal:
+            on_goal = np.all(starts == goals, axis=-1)
+            while on_goal.any():
+                starts[on_goal] = rng.integers(0, self.size, size=(int(on_goal.sum()), 2))
+                on_goal = np.all(starts == goals, axis=-1)
+        return starts
+
+    def make_env(self, goals: np.ndarray) -> DarkRoomVectorEnv:
+        return DarkRoomVectorEnv(self, goals)
+
+    def context_rollouts(self, tasks: np.ndarray, rng: np.random.Generator) -> ContinuingRollouts:
+        return ContinuingRollouts(self, tasks, rng)
+
+    def reference_groups(self, qualities: tuple[str, ...]) -> list[tuple[str, ...]]:
+        """Each quality's references are measured right after its evaluation split (draw order = bytes)."""
+        return [(q,) for q in qualities]
+
+    def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
+        """This family's own calibration (kept: its datasets' bytes depend on it; see ``oracle.py``)."""
+        return calibrate_mixing(self, dict(targets), episodes, seed=seed)
+
+    def references(self, tasks: np.ndarray, mixing: Mapping[str, float], episodes: int,
+                   rng: np.random.Generator) -> dict[str, Any]:
+        """Behavior (mixed policy) and optimal returns on the held-out goals, mean over goals."""
+        reference = {}
+        for quality, p in mixing.items():
+            goals = np.repeat(tasks, episodes, axis=0)
+            ret, opt = rollout_returns(self, goals, np.full(len(goals), p), rng)
+            task_of = np.repeat(np.arange(len(tasks)), episodes)
+            b_mean, b_sem = mean_sem(per_task_mean(ret, task_of))
+            o_mean, _ = mean_sem(per_task_mean(opt, task_of))
+            reference[quality] = {"behavior_return": b_mean, "behavior_return_sem": b_sem, "optimal_return": o_mean}
+        return {"test_reference": reference}
+
+    def config(self) -> dict[str, Any]:
+        return {"family": self.name, "size": self.size, "horizon": self.horizon,
+                "n_train_tasks": self.n_train_tasks, "n_test_tasks": self.n_test_tasks,
+                "terminate_on_goal": self.terminate_on_goal, "seed": self.seed}
+
+
+class ContinuingRollouts:
+    """H steps of the behavior process on N goals: starts from ``rng``; a finished episode restarts."""
+
+    def __init__(self, family: DarkRoomFamily, goals: np.ndarray, rng: np.random.Generator) -> None:
+        self.family, self.goals, self.rng = family, np.asarray(goals), rng
+        self.states = family.sample_starts(self.goals, rng)
+        self.t = 0
+
+    def observations(self) -> np.ndarray:
+        return self.states.astype(np.float32)
+
+    def oracle_state(self) -> DarkRoomState:
+        return DarkRoomState(self.states, self.goals, self.t)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nxt = transition(self.states, actions, self.family.size)
+        reward = step_reward(nxt, self.goals)
+        observed = nxt.astype(np.float32)
+        if self.family.terminate_on_goal:
+            reached = reward > 0
+            if reached.any():
+                nxt[reached] = self.family.sample_starts(self.goals[reached], self.rng)
+        self.states, self.t = nxt, self.t + 1
+        return observed, reward
+
+    def __enter__(self) -> ContinuingRollouts:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None

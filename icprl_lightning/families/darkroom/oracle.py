@@ -1,0 +1,127 @@
+"""DarkRoom oracle: optimal actions, the closed-form optimal advantage A*, and mixed behavior policies.
+
+Privileged: it sees the goal. Only data generation and evaluation use it; no model receives its output
+except DPT/DP²T's optimal-action labels (the paper's supervised baselines).
+
+Closed form (finite horizon, k = steps left including the current one, d = Manhattan distance to the
+goal, r(s, a) = 1[s' = goal]):
+
+* without termination   V*_k(s) = max(0, k + 1 − max(d, 1))     (walk d steps, then stay on the goal)
+* with termination      V*_k(s) = 1[1 ≤ d ≤ k]                   (the goal cell itself is terminal)
+
+and Q*_k(s, a) = r(s, a) + V*_{k−1}(s') (no continuation after entering a terminal goal),
+A*_k(s, a) = Q*_k(s, a) − V*_k(s). Tested against brute-force backward induction.
+
+Mixed behavior policy (appendix "Pretraining Data Generation"): with probability p the optimal action,
+otherwise a uniformly random one. p is calibrated by simulation so the policy earns a target share
+(20/40/80%) of the optimal return on the training goals.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from icprl_lightning.families.base import Oracle
+from icprl_lightning.families.calibration import invert_quality_curve
+from icprl_lightning.families.darkroom.env import N_ACTIONS, NOOP, DarkRoomState, step_reward, transition
+
+if TYPE_CHECKING:
+    from icprl_lightning.families.darkroom.family import DarkRoomFamily
+
+
+
+def optimal_actions(states: np.ndarray, goals: np.ndarray) -> np.ndarray:
+    """A deterministic optimal action: close the x gap first, then the y gap, then stay."""
+    dx = goals[..., 0] - states[..., 0]
+    dy = goals[..., 1] - states[..., 1]
+    act = np.full(dx.shape, NOOP, dtype=np.int64)
+    act = np.where(dy > 0, 0, act)
+    act = np.where(dy < 0, 1, act)
+    act = np.where(dx < 0, 2, act)
+    return np.where(dx > 0, 3, act)
+
+
+def optimal_value(states: np.ndarray, goals: np.ndarray, steps_left: np.ndarray | int,
+                  terminate_on_goal: bool) -> np.ndarray:
+    """V*_k(s) in closed form (see the module docstring); float32 of the batch shape."""
+    d = np.abs(states[..., 0] - goals[..., 0]) + np.abs(states[..., 1] - goals[..., 1])
+    k = np.asarray(steps_left)
+    if terminate_on_goal:
+        return ((d >= 1) & (d <= k)).astype(np.float32)
+    return np.maximum(0, k + 1 - np.maximum(d, 1)).astype(np.float32)
+
+
+def optimal_advantage(states: np.ndarray, actions: np.ndarray, goals: np.ndarray, steps_left: np.ndarray | int,
+                      family: DarkRoomFamily) -> np.ndarray:
+    """A*_k(s, a) = r(s, a) + V*_{k−1}(s') − V*_k(s), vectorized over any batch shape."""
+    nxt = transition(states, actions, family.size)
+    r = step_reward(nxt, goals)
+    k = np.asarray(steps_left)
+    cont = optimal_value(nxt, goals, k - 1, family.terminate_on_goal)
+    if family.terminate_on_goal:
+        cont = np.where(r > 0, 0.0, cont)
+    return (r + cont - optimal_value(states, goals, k, family.terminate_on_goal)).astype(np.float32)
+
+
+def rollout_returns(family: DarkRoomFamily, goals: np.ndarray, p_optimal: np.ndarray,
+                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Returns of the mixed policy with per-episode p, and the optimal return from the same starts."""
+    env = family.make_env(goals)
+    obs, _ = env.reset(seed=int(rng.integers(2**31)))
+    optimal = optimal_value(env.states, goals, family.horizon, family.terminate_on_goal)
+    total = np.zeros(len(goals), dtype=np.float64)
+    for _ in range(family.horizon):
+        a = family.oracle.behavior_actions(env.oracle_state(), p_optimal, rng)
+        _, r, _, _, _ = env.step(a)
+        total += r
+    return total, optimal.astype(np.float64)
+
+
+def calibrate_mixing(family: DarkRoomFamily, targets: dict[str, float], episodes_per_goal: int = 25,
+                     seed: int = 0, grid: int = 51) -> dict[str, dict[str, float]]:
+    """Find p per quality so the mixed policy earns ``target`` × optimal return on the training goals.
+
+    Simulates every p of a grid on all training goals at once, makes the return-ratio curve monotone,
+    inverts it by interpolation, then re-simulates at the chosen p to report the achieved ratio.
+    """
+    rng = np.random.default_rng(seed)
+    goals = family.train_goals
+    ps = np.linspace(0.0, 1.0, grid)
+    rep_goals = np.tile(np.repeat(goals, episodes_per_goal, axis=0), (grid, 1))
+    rep_p = np.repeat(ps, len(goals) * episodes_per_goal)
+    ret, opt = rollout_returns(family, rep_goals, rep_p, rng)
+    ratio = (ret.reshape(grid, -1).mean(1) / opt.reshape(grid, -1).mean(1))
+    chosen = invert_quality_curve(ps, ratio, targets)
+    out: dict[str, dict[str, float]] = {}
+    for name, p in chosen.items():
+        check_goals = np.repeat(goals, episodes_per_goal, axis=0)
+        r, o = rollout_returns(family, check_goals, np.full(len(check_goals), p), rng)
+        out[name] = {"target": float(targets[name]), "mixing": p, "achieved": float(r.mean() / o.mean()),
+                     "mean_return": float(r.mean()), "optimal_return": float(o.mean())}
+    return out
+
+
+class DarkRoomOracle(Oracle):
+    """The ``Oracle`` of ``families/base.py`` for a DarkRoom family (closed-form A*, see the module docstring)."""
+
+    def __init__(self, family: DarkRoomFamily) -> None:
+        self.family = family
+
+    def uniform_actions(self, state: DarkRoomState, rng: np.random.Generator) -> np.ndarray:
+        return rng.integers(0, N_ACTIONS, size=len(state.states))
+
+    def optimal_actions(self, state: DarkRoomState) -> np.ndarray:
+        return optimal_actions(state.states, state.goals)
+
+    def utility(self, state: DarkRoomState, actions: np.ndarray) -> np.ndarray:
+        """A*_k(s, a) of K candidates [K, N] with k = H − t steps left (exact, not up to a constant)."""
+        return optimal_advantage(state.states, actions, state.goals, self.family.horizon - state.t, self.family)
+
+    def query_labels(self, tasks: np.ndarray, visited_states: np.ndarray, visited_optimal: np.ndarray,
+                     horizon: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """Query states uniform over the grid [N, H, 2] (not the visited ones) and their optimal actions."""
+        states = rng.integers(0, self.family.size, size=(len(tasks), horizon, 2))
+        labels = optimal_actions(states, tasks[:, None, :])
+        return {"query_states": states.astype(np.float32), "optimal_actions": labels.astype(np.int8)}

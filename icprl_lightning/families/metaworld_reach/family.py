@@ -1,0 +1,109 @@
+"""Meta-World Reach as a ``TaskFamily`` (paper, appendix "MDP Environment Details"): metaworld's ML1
+``reach-v3`` goals fixed by ``seed`` — the first ``n_train`` train, the last ``n_test`` are held out —
+H = 150, 39-D observations with the goal zeroed, 4-D continuous actions.
+
+Both kinds of rollouts are episodes of ``ReachVectorEnv`` (worker processes over both cores), at most
+``max_parallel`` at once (≈0.7 MB per env); ``num_workers`` does not change any number.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.families.base import TaskFamily
+from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON, OBS_DIM, ReachVectorEnv, ml1_goals
+from icprl_lightning.families.metaworld_reach.oracle import ReachOracle, calibrate_mixing, rollout_returns
+from icprl_lightning.metrics import mean_sem, per_task_mean
+
+
+class ReachTaskFamily(TaskFamily):
+    """Reach goals fixed by ``seed``: ML1's 50 goals, the first ``n_train`` to train, the last ``n_test`` held out."""
+
+    name = "metaworld_reach"
+    metric_env = "metaworld"
+    task_name = "goals"
+    obs_dim = OBS_DIM
+    action_dim = ACTION_DIM
+    max_parallel = 1024  # episodes simulated at once; bounds memory for paper-sized datasets
+
+    def __init__(self, seed: int = 0, n_train: int = 45, n_test: int = 5, horizon: int = HORIZON,
+                 num_workers: int = 2) -> None:
+        if n_train < 1 or n_test < 1 or n_train + n_test > 50:
+            raise ValueError(f"ML1 offers 50 goals: need n_train, n_test ≥ 1 and n_train + n_test ≤ 50, "
+                             f"got {n_train} + {n_test}")
+        self.seed = seed
+        self.n_train = n_train
+        self.n_test = n_test
+        self.horizon = horizon
+        self.num_workers = num_workers
+        goals = ml1_goals(seed)  # continuous i.i.d. draws: distinct (tested)
+        self._train, self._test = goals[:n_train].copy(), goals[len(goals) - n_test:].copy()
+
+    @property
+    def action_spec(self) -> ActionSpec:
+        return ActionSpec(discrete=False, size=ACTION_DIM)
+
+    @cached_property
+    def oracle(self) -> ReachOracle:
+        return ReachOracle(self)
+
+    @property
+    def train_goals(self) -> np.ndarray:
+        return self._train.copy()
+
+    @property
+    def test_goals(self) -> np.ndarray:
+        return self._test.copy()
+
+    def tasks(self, split: str) -> np.ndarray:
+        if split not in ("train", "test"):
+            raise ValueError(f"split must be 'train' or 'test', got {split!r}")
+        return self.train_goals if split == "train" else self.test_goals
+
+    goals = tasks
+
+    def make_env(self, goals: np.ndarray, num_workers: int | None = None) -> ReachVectorEnv:
+        workers = self.num_workers if num_workers is None else num_workers
+        return ReachVectorEnv(goals, horizon=self.horizon, num_workers=workers)
+
+    def normalizer(self, info: Mapping[str, Any], quality: str, task_index: np.ndarray) -> Callable:
+        """(R − R_uniform) / (R_expert − R_uniform) with the episode's own goal's references."""
+        per_task = info["test_reference_per_task"]
+        uniform = np.asarray(per_task["uniform_return"])[task_index]
+        expert = np.asarray(per_task["expert_return"])[task_index]
+        return lambda returns: (returns - uniform) / (expert - uniform)
+
+    def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
+        """This family's own calibration (kept: its datasets' bytes depend on it; see ``oracle.py``)."""
+        return calibrate_mixing(self, targets, episodes, seed=seed, num_workers=self.num_workers)
+
+    def references(self, tasks: np.ndarray, mixing: Mapping[str, float], episodes: int,
+                   rng: np.random.Generator) -> dict[str, Any]:
+        """Return and success of uniform, each behavior π_q and the expert on each held-out goal."""
+        goals = np.repeat(tasks, episodes, axis=0)
+        task_of = np.repeat(np.arange(len(tasks)), episodes)
+        ps = np.array([0.0, *mixing.values(), 1.0])
+        returns, success = rollout_returns(self, goals, ps, int(rng.integers(2**31)), self.num_workers)
+        per_task = [per_task_mean(r, task_of) for r in returns]  # uniform, the behaviors, expert
+        uniform, expert = per_task[0], per_task[-1]
+        expert_success = mean_sem(per_task_mean(success[-1].astype(float), task_of))[0]
+        reference = {}
+        for qi, q in enumerate(mixing):
+            b_mean, b_sem = mean_sem(per_task[qi + 1])
+            reference[q] = {"behavior_return": b_mean, "behavior_return_sem": b_sem,
+                            "behavior_success": mean_sem(per_task_mean(success[qi + 1].astype(float), task_of))[0],
+                            "behavior_normalized_return": mean_sem((per_task[qi + 1] - uniform)
+                                                                   / (expert - uniform))[0],
+                            "expert_return": mean_sem(expert)[0], "expert_success": expert_success,
+                            "uniform_return": mean_sem(uniform)[0]}
+        return {"test_reference": reference,
+                "test_reference_per_task": {"uniform_return": uniform.tolist(), "expert_return": expert.tolist()}}
+
+    def config(self) -> dict[str, Any]:
+        return {"family": self.name, "env": "reach-v3", "expert": "tcp", "horizon": self.horizon,
+                "n_train_tasks": self.n_train, "n_test_tasks": self.n_test, "seed": self.seed}

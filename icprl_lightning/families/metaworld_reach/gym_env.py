@@ -1,0 +1,95 @@
+"""Single-episode Gymnasium env for Meta-World Reach, for Stable-Baselines3 (SAC oracle and baseline).
+
+``ReachGoalEnv`` is one stock ``reach-v3`` (metaworld 3.x, MuJoCo) with this project's task conventions
+(see ``families/metaworld_reach/env.py``): latent reward r_h = −‖tcp_h − goal‖, ``info["success"]`` when
+‖tcp − goal‖ ≤ 0.05, no early termination, truncation at H = 150. At each reset it draws one goal of
+``goals`` [G, 3] from ``self.np_random`` (or takes ``options={"goal_index": i}``) and a puck position
+(a distractor) from the same generator, so ``reset(seed=s)`` and an action sequence fix every step.
+
+``goal_visible`` chooses what obs[36:39] holds. Hidden (zeros, the default) is what an ICPRL agent sees
+and is enough for a single-goal env, where the goal is a constant. Visible is for the goal-conditioned
+SAC oracle (``families/metaworld_reach/sac.py``), whose actor and critic must tell the goals apart; it is privileged
+information and never reaches a preference learner. ``oracle_state()`` gives the privileged
+``ReachOracleState`` (hand, TCP, mocap, goal) as a batch of one, for the scripted expert in evaluation.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from metaworld.envs.sawyer_reach_v3 import SawyerReachEnvV3
+
+from icprl_lightning.families.metaworld_reach.env import (
+    ACTION_DIM,
+    GOAL_SLICE,
+    HORIZON,
+    OBS_DIM,
+    SUCCESS_RADIUS,
+    ReachOracleState,
+    latent_reward,
+    reach_task,
+    sample_puck_positions,
+)
+
+
+class ReachGoalEnv(gym.Env):
+    """One reach-v3 episode at a time on a goal drawn from ``goals`` [G, 3]; obs float32 [39], action [4]."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, goals: np.ndarray, horizon: int = HORIZON, goal_visible: bool = False) -> None:
+        goals = np.array(goals, dtype=np.float64)
+        if goals.ndim == 1:
+            goals = goals[None]
+        if goals.ndim != 2 or goals.shape[1] != 3 or len(goals) == 0:
+            raise ValueError(f"goals must have shape [G, 3] (or [3]) with G ≥ 1, got {list(goals.shape)}")
+        if not 1 <= horizon <= SawyerReachEnvV3.max_path_length:
+            raise ValueError(f"horizon must be in [1, {SawyerReachEnvV3.max_path_length}], got {horizon}")
+        self.goals = goals
+        self.horizon = horizon
+        self.goal_visible = goal_visible
+        # Unbounded: metaworld's own bounds exclude the zeros that hide the goal.
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(OBS_DIM,), dtype=np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(ACTION_DIM,), dtype=np.float32)
+        self._env = SawyerReachEnvV3()
+        self._env.max_path_length = horizon
+        self.goal = goals[0].copy()
+        self._raw_obs = np.zeros(OBS_DIM)
+        self.t = horizon  # no episode until reset()
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        index = (options or {}).get("goal_index")
+        if index is None:
+            index = int(self.np_random.integers(len(self.goals)))
+        self.goal = self.goals[index].copy()
+        puck = sample_puck_positions(self.goal[None], self.np_random)[0]
+        self._env.set_task(reach_task(goal=self.goal, puck=puck))
+        obs, _ = self._env.reset()
+        self._raw_obs = obs
+        self.t = 0
+        return self._observe(obs), {"goal_index": int(index)}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self.t >= self.horizon:
+            raise RuntimeError("episode is over (horizon reached or never reset): call reset()")
+        obs, *_ = self._env.step(np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0))
+        self._raw_obs = obs
+        self.t += 1
+        reward = float(latent_reward(self._env.tcp_center, self.goal))
+        info = {"success": bool(-reward <= SUCCESS_RADIUS), "distance": -reward}
+        return self._observe(obs), reward, False, self.t >= self.horizon, info
+
+    def oracle_state(self) -> ReachOracleState:
+        """Hand, previous hand, TCP, mocap and goal as a batch of one: for oracles and evaluation only."""
+        raw = self._raw_obs
+        return ReachOracleState(hand=raw[None, 0:3].copy(), prev_hand=raw[None, 18:21].copy(),
+                                tcp=self._env.tcp_center[None].copy(), mocap=self._env.data.mocap_pos[0][None].copy(),
+                                goal=self.goal[None].copy(), t=self.t)
+
+    def _observe(self, obs: np.ndarray) -> np.ndarray:
+        obs = obs.astype(np.float32)
+        obs[GOAL_SLICE] = self.goal if self.goal_visible else 0.0
+        return obs

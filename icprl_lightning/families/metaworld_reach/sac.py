@@ -1,0 +1,254 @@
+"""Meta-World Reach oracle (b), as in the paper: Stable-Baselines3 SAC, its checkpoints as behavior
+policies and its critic as the A* estimate (appendices "Baseline Implementation Details" and
+"Pretraining Data Generation").
+
+Privileged: the SAC sees the goal (obs[36:39] filled in by ``ReachGoalEnv(goal_visible=True)``). Only
+data generation and evaluation use it; no preference learner receives its inputs or outputs except
+through the labels and behavior actions it produces.
+
+Per-task or goal-conditioned? One goal-conditioned SAC over the chosen goals, by default the 45
+training goals. The paper trains one SAC per task to convergence; on this project's CPU budget SB3's SAC
+runs ≈ 30 steps/s per core, so 45 separate runs to convergence (tens of thousands of steps each) would
+take a day, while the arm dynamics are identical across goals and only the goal differs, so one network
+whose actor and critic see the goal shares all that learning. Its critic Q(s, a; g) is goal-specific,
+which is all A* needs. The one difference from the paper: the behavior checkpoints are shared by the
+goals, so "20% of the final return" holds on average over the goals, not per goal. ``--goal-index i``
+trains the paper's per-task variant with the same code (a goal list of one).
+
+Checkpoints and quality. Every ``checkpoint_every`` steps (and at step 0, the untrained policy) the
+model is saved and evaluated on the same ``eval_episodes`` episodes (goals cycled, fixed seed), acting by
+*sampling* from the policy, as a behavior policy will. The last checkpoint is the converged policy π.
+A checkpoint's quality is its normalized return q = (R − R_uniform) / (R_final − R_uniform), uniform
+actions on the same episodes being 0 and π being 1; for each target (low/medium/high = 0.2/0.4/0.8)
+the checkpoint with q closest to it is the behavior policy. ``calibration`` has the scripted oracle's
+format, {quality: {target, achieved, ...}}, plus the checkpoint step and the return normalized by the
+scripted expert of ``families/metaworld_reach/oracle.py`` on the same episodes (``achieved_vs_expert``).
+
+Advantage. A*(s, a) ≈ Q̂(s, a) − (1/M) Σ_m Q̂(s, a'_m), a'_m ~ π(·|s), with Q̂ the minimum of SAC's twin
+critics (the value SAC's own policy update uses). Averaged over actions drawn from π it is zero up to
+Monte Carlo error.
+
+Run (writes ``<out>/checkpoints/step_*.zip`` and ``<out>/summary.json`` through a temp directory renamed
+into place, so an interrupted run leaves nothing half-written):
+
+    python -m icprl_lightning.families.metaworld_reach.sac --goals train --timesteps 200000 --out data/sac_oracle
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import stable_baselines3
+import torch
+from stable_baselines3 import SAC
+
+from icprl_lightning.families.metaworld_reach import ReachTaskFamily
+from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON
+from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
+from icprl_lightning.families.metaworld_reach.oracle import QUALITY_TARGETS, expert_actions
+from icprl_lightning.families.sb3_common import Act, EvalCheckpointCallback, EvalRecord, run_episodes
+from icprl_lightning.io import jsonable, staged_directory
+
+SUMMARY = "summary.json"
+SCHEMA_VERSION = 1
+
+
+def sample_policy_actions(model: SAC, obs: np.ndarray, generator: torch.Generator) -> np.ndarray:
+    """Actions [B, 4] sampled from SAC's squashed Gaussian at obs [B, 39], noise from ``generator``."""
+    with torch.no_grad():
+        mean, log_std, _ = model.actor.get_action_dist_params(torch.as_tensor(obs, dtype=torch.float32))
+        noise = torch.randn(mean.shape, generator=generator)
+        actions = torch.tanh(mean + log_std.exp() * noise)
+    return model.policy.unscale_action(actions.numpy())
+
+
+def stochastic_act(seed: int) -> Callable[[SAC], Act]:
+    """``make_act`` for the checkpoint callback: sample from the policy, the same noise at each evaluation."""
+    def make_act(model: SAC) -> Act:
+        generator = torch.Generator().manual_seed(seed)
+        return lambda obs: sample_policy_actions(model, obs[None], generator)[0]
+    return make_act
+
+
+def calibrate_checkpoints(records: Sequence[EvalRecord], uniform_return: float, expert_return: float,
+                          targets: Mapping[str, float] = QUALITY_TARGETS) -> dict[str, dict[str, Any]]:
+    """For each target, the checkpoint whose return normalized between uniform (0) and the last one (1) is closest.
+
+    Ties go to the earlier checkpoint. The scripted oracle's calibration format, plus the checkpoint.
+    """
+    returns = np.array([r.mean_return for r in records], dtype=np.float64)
+    final = returns[-1]
+    normalized = (returns - uniform_return) / (final - uniform_return)
+    out = {}
+    for name, target in targets.items():
+        i = int(np.argmin(np.abs(normalized - target)))
+        out[name] = {"target": float(target), "achieved": float(normalized[i]), "step": records[i].step,
+                     "path": records[i].path, "return": float(returns[i]), "success": records[i].success,
+                     "uniform_return": float(uniform_return), "final_return": float(final),
+                     "expert_return": float(expert_return),
+                     "achieved_vs_expert": float((returns[i] - uniform_return) / (expert_return - uniform_return))}
+    return out
+
+
+def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: int = 0,
+                     checkpoint_every: int | None = None, eval_episodes: int = 10, horizon: int = HORIZON,
+                     targets: Mapping[str, float] = QUALITY_TARGETS, overwrite: bool = False,
+                     extra: Mapping[str, Any] | None = None) -> Path:
+    """Train one goal-conditioned SAC on ``goals`` [G, 3], save checkpoints, pick the behavior policies.
+
+    ``checkpoint_every`` defaults to timesteps // 20. Returns ``out``, written atomically.
+    """
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists; delete it or pass overwrite=True (--overwrite)")
+    goals = np.asarray(goals, dtype=np.float64).reshape(-1, 3)
+    every = checkpoint_every or max(1, timesteps // 20)
+    model_seed, eval_seed, noise_seed, ref_seed = (int(s) for s in np.random.SeedSequence(seed).generate_state(4))
+    with staged_directory(out) as tmp:
+        eval_env = ReachGoalEnv(goals, horizon=horizon, goal_visible=True)
+        options = [{"goal_index": i % len(goals)} for i in range(eval_episodes)]
+        callback = EvalCheckpointCallback(eval_env, every, eval_episodes, eval_seed, stochastic_act(noise_seed),
+                                          save_dir=tmp / "checkpoints", reset_options=options, eval_at_start=True)
+        model = SAC("MlpPolicy", ReachGoalEnv(goals, horizon=horizon, goal_visible=True), seed=model_seed,
+                    device="cpu")
+        start = time.perf_counter()
+        model.learn(total_timesteps=timesteps, callback=callback)
+        seconds = time.perf_counter() - start
+        rng = np.random.default_rng(ref_seed)
+        uniform = run_episodes(lambda obs: rng.uniform(-1, 1, ACTION_DIM).astype(np.float32), eval_env,
+                               eval_episodes, eval_seed, options).returns.mean()
+        expert = run_episodes(lambda obs: expert_actions(eval_env.oracle_state())[0], eval_env, eval_episodes,
+                              eval_seed, options).returns.mean()
+        calibration = calibrate_checkpoints(callback.history, float(uniform), float(expert), targets)
+        final = callback.history[-1]
+        summary = {
+            "schema_version": SCHEMA_VERSION,
+            "algorithm": f"SAC (stable-baselines3 {stable_baselines3.__version__}, default hyperparameters), "
+                         "goal-conditioned (goal in obs[36:39])",
+            "goals": goals, "timesteps": timesteps, "horizon": horizon, "seed": seed, "model_seed": model_seed,
+            "checkpoint_every": every, "eval_episodes": eval_episodes, "eval_seed": eval_seed,
+            "eval_policy": "stochastic (sampled actions)", "uniform_return": float(uniform),
+            "expert_return": float(expert), "final": {"step": final.step, "path": final.path,
+                                                      "return": final.mean_return, "success": final.success},
+            "final_beats_uniform": bool(final.mean_return > uniform),
+            "checkpoints": [r._asdict() for r in callback.history], "calibration": calibration,
+            "train_seconds": seconds, **(extra or {})}
+        with open(tmp / SUMMARY, "w") as f:
+            json.dump(jsonable(summary), f, indent=2)
+    return out
+
+
+class SACOracle:
+    """A trained SAC oracle directory: the converged policy π and critic, the behavior checkpoints.
+
+    Observations are goal-visible [B, 39] (``ReachGoalEnv(goal_visible=True)``), actions [B, 4].
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        summary_path = self.path / SUMMARY
+        if not summary_path.exists():
+            raise FileNotFoundError(f"{summary_path} not found: train it with "
+                                    "`python -m icprl_lightning.families.metaworld_reach.sac`")
+        self.summary = json.loads(summary_path.read_text())
+        if self.summary.get("schema_version") != SCHEMA_VERSION:
+            raise ValueError(f"{summary_path} has schema {self.summary.get('schema_version')}, expected "
+                             f"{SCHEMA_VERSION}: retrain the oracle")
+        self.model = self._load(self.summary["final"]["path"])
+        self._behavior: dict[str, SAC] = {}
+
+    @property
+    def calibration(self) -> dict[str, dict[str, Any]]:
+        return self.summary["calibration"]
+
+    @property
+    def goals(self) -> np.ndarray:
+        return np.asarray(self.summary["goals"], dtype=np.float64)
+
+    def behavior(self, quality: str) -> SAC:
+        """The checkpoint calibrated for ``quality`` (e.g. "low", "medium", "high")."""
+        if quality not in self.calibration:
+            raise KeyError(f"quality {quality!r} not calibrated; have {sorted(self.calibration)}")
+        if quality not in self._behavior:
+            self._behavior[quality] = self._load(self.calibration[quality]["path"])
+        return self._behavior[quality]
+
+    def policy_actions(self, obs: np.ndarray, generator: torch.Generator, quality: str | None = None) -> np.ndarray:
+        """Actions [B, 4] sampled from π (``quality=None``) or from that quality's behavior checkpoint."""
+        model = self.model if quality is None else self.behavior(quality)
+        return sample_policy_actions(model, self._check_obs(obs), generator)
+
+    def q_values(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """Q̂(s, a) [B]: the minimum of SAC's twin critics."""
+        obs = self._check_obs(obs)
+        actions = np.asarray(actions, dtype=np.float32)
+        if actions.shape != (len(obs), ACTION_DIM):
+            raise ValueError(f"actions must have shape [{len(obs)}, {ACTION_DIM}], got {list(actions.shape)}")
+        scaled = self.model.policy.scale_action(actions)
+        with torch.no_grad():
+            qs = self.model.critic(torch.as_tensor(obs), torch.as_tensor(scaled, dtype=torch.float32))
+        return torch.cat(qs, dim=1).min(dim=1).values.numpy().astype(np.float64)
+
+    def advantage(self, obs: np.ndarray, actions: np.ndarray, n_samples: int = 64, seed: int = 0) -> np.ndarray:
+        """A*(s, a) ≈ Q̂(s, a) − mean over ``n_samples`` actions a' ~ π(·|s) of Q̂(s, a') [B]."""
+        obs = self._check_obs(obs)
+        q = self.q_values(obs, actions)
+        repeated = np.repeat(obs, n_samples, axis=0)  # [B·M, 39]
+        sampled = self.policy_actions(repeated, torch.Generator().manual_seed(seed))
+        baseline = self.q_values(repeated, sampled).reshape(len(obs), n_samples).mean(axis=1)
+        return q - baseline
+
+    def _load(self, rel: str) -> SAC:
+        return SAC.load(self.path / rel, device="cpu")
+
+    @staticmethod
+    def _check_obs(obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs, dtype=np.float32)
+        if obs.ndim != 2 or obs.shape[1] != 39:
+            raise ValueError(f"obs must be goal-visible observations of shape [B, 39], got {list(obs.shape)}")
+        return obs
+
+
+def main(args: Sequence[str] | None = None) -> Path:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--goals", choices=("train", "test", "all"), default="train")
+    parser.add_argument("--goal-index", type=int, default=None, help="train on this one goal of the split (per-task)")
+    parser.add_argument("--timesteps", type=int, required=True)
+    parser.add_argument("--checkpoint-every", type=int, default=None, help="default: timesteps // 20")
+    parser.add_argument("--eval-episodes", type=int, default=10)
+    parser.add_argument("--horizon", type=int, default=HORIZON)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--family-seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for these MLPs)")
+    parser.add_argument("--overwrite", action="store_true")
+    parser.add_argument("--out", type=Path, required=True)
+    ns = parser.parse_args(args)
+    torch.set_num_threads(ns.threads)
+    family = ReachTaskFamily(seed=ns.family_seed)
+    goals = np.concatenate([family.train_goals, family.test_goals]) if ns.goals == "all" else family.goals(ns.goals)
+    if ns.goal_index is not None:
+        goals = goals[ns.goal_index : ns.goal_index + 1]
+    argv = sys.argv[1:] if args is None else args
+    command = "python -m icprl_lightning.families.metaworld_reach.sac " + " ".join(argv)
+    out = train_sac_oracle(goals, ns.out, ns.timesteps, ns.seed, ns.checkpoint_every, ns.eval_episodes, ns.horizon,
+                           overwrite=ns.overwrite, extra={"goal_split": ns.goals, "goal_index": ns.goal_index,
+                                                          "family_seed": ns.family_seed, "command": command})
+    summary = SACOracle(out).summary
+    for name, c in summary["calibration"].items():
+        print(f"{name}: step {c['step']}, normalized {c['achieved']:.2f} (target {c['target']}), "
+              f"vs expert {c['achieved_vs_expert']:.2f}")
+    if not summary["final_beats_uniform"]:
+        print("warning: the final policy does not beat uniform actions; train longer", file=sys.stderr)
+    return out
+
+
+if __name__ == "__main__":
+    main()

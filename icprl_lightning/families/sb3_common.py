@@ -1,0 +1,174 @@
+"""Shared Stable-Baselines3 machinery: periodic evaluation with checkpoints, episode rollouts, atomic output.
+
+Used by the from-scratch baselines (``sac_from_scratch``, ``dqn_from_scratch``) and the SAC oracle
+(``families/metaworld_reach/sac.py``). ``EvalCheckpointCallback`` evaluates the policy being trained every
+``eval_every_steps`` environment steps (and once before the first step) on a separate env reset with
+the same seed each time, so all checkpoints face the same start states and the curve is not drowned
+by episode noise; it keeps the best policy's weights (by mean evaluation return) and can save every
+checkpoint as an SB3 zip.
+
+Success of an episode is "the success flag was raised at some step", as in ``evaluation/rollout.py``.
+"""
+
+from __future__ import annotations
+
+import copy
+import platform
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback
+
+from icprl_lightning.metrics import mean_sem
+
+Act = Callable[[np.ndarray], np.ndarray]
+
+
+class EpisodeStats(NamedTuple):
+    returns: np.ndarray  # [episodes] latent return of each episode
+    success: np.ndarray  # [episodes] 1.0 when info["success"] was raised at some step
+
+
+class EvalRecord(NamedTuple):
+    step: int           # environment steps of training so far
+    mean_return: float  # over the evaluation episodes
+    success: float      # share of evaluation episodes that succeeded
+    path: str | None    # the saved SB3 zip, relative to the save directory's parent (or None)
+
+
+def run_episodes(act: Act, env: gym.Env, episodes: int, seed: int,
+                 reset_options: Sequence[dict[str, Any]] | None = None) -> EpisodeStats:
+    """Roll ``act`` (obs → action) for ``episodes`` episodes; the first reset gets ``seed``, the rest continue it."""
+    if reset_options is not None and len(reset_options) != episodes:
+        raise ValueError(f"reset_options must hold one dict per episode ({episodes}), got {len(reset_options)}")
+    returns, success = np.zeros(episodes), np.zeros(episodes)
+    for ep in range(episodes):
+        obs, _ = env.reset(seed=seed if ep == 0 else None, options=None if reset_options is None else reset_options[ep])
+        done = False
+        while not done:
+            obs, reward, terminated, truncated, info = env.step(act(obs))
+            returns[ep] += reward
+            success[ep] = max(success[ep], float(info.get("success", False)))
+            done = terminated or truncated
+    return EpisodeStats(returns, success)
+
+
+def deterministic_act(model: BaseAlgorithm) -> Act:
+    """The policy's greedy / mean action (SB3 ``predict(deterministic=True)``)."""
+    return lambda obs: model.predict(obs, deterministic=True)[0]
+
+
+class EvalCheckpointCallback(BaseCallback):
+    """Evaluate every ``eval_every_steps`` steps, at the end of training (and at step 0 with
+    ``eval_at_start``, i.e. the untrained policy); keep the best weights; optionally save each checkpoint.
+
+    ``make_act(model)`` gives the action function to evaluate (default: the deterministic policy).
+    After training, ``history`` lists every evaluation, ``best_index`` the first one with the highest
+    mean return, and ``restore_best()`` loads its weights into the model.
+    """
+
+    def __init__(self, eval_env: gym.Env, eval_every_steps: int, eval_episodes: int, eval_seed: int,
+                 make_act: Callable[[BaseAlgorithm], Act] = deterministic_act, save_dir: str | Path | None = None,
+                 reset_options: Sequence[dict[str, Any]] | None = None, eval_at_start: bool = True) -> None:
+        super().__init__()
+        if eval_every_steps < 1 or eval_episodes < 1:
+            raise ValueError(f"eval_every_steps and eval_episodes must be ≥ 1, got {eval_every_steps}, "
+                             f"{eval_episodes}")
+        self.eval_env = eval_env
+        self.eval_every_steps = eval_every_steps
+        self.eval_episodes = eval_episodes
+        self.eval_seed = eval_seed
+        self.make_act = make_act
+        self.save_dir = None if save_dir is None else Path(save_dir)
+        self.reset_options = reset_options
+        self.eval_at_start = eval_at_start
+        self.history: list[EvalRecord] = []
+        self.best_index = -1
+        self._best_state: dict[str, Any] | None = None
+
+    def _on_training_start(self) -> None:
+        if self.eval_at_start and not self.history:  # a second learn() call continues the history
+            self._evaluate()
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps % self.eval_every_steps == 0:
+            self._evaluate()
+        return True
+
+    def _on_training_end(self) -> None:
+        # The final policy is always a candidate (the oracle's "converged" checkpoint), even off the grid.
+        if not self.history or self.history[-1].step != self.num_timesteps:
+            self._evaluate()
+
+    def _evaluate(self) -> None:
+        stats = run_episodes(self.make_act(self.model), self.eval_env, self.eval_episodes, self.eval_seed,
+                             self.reset_options)
+        path = None
+        if self.save_dir is not None:
+            self.save_dir.mkdir(parents=True, exist_ok=True)
+            name = f"step_{self.num_timesteps:08d}.zip"
+            self.model.save(self.save_dir / name)
+            path = f"{self.save_dir.name}/{name}"
+        self.history.append(EvalRecord(int(self.num_timesteps), float(stats.returns.mean()),
+                                       float(stats.success.mean()), path))
+        if self.best_index < 0 or self.history[-1].mean_return > self.history[self.best_index].mean_return:
+            self.best_index = len(self.history) - 1
+            self._best_state = copy.deepcopy(self.model.policy.state_dict())
+
+    def restore_best(self) -> EvalRecord:
+        """Load the best evaluated weights into the model's policy and return that evaluation."""
+        if self._best_state is None:
+            raise RuntimeError("no evaluation yet: train with this callback first")
+        self.model.policy.load_state_dict(self._best_state)
+        return self.history[self.best_index]
+
+
+def train_from_scratch(model: BaseAlgorithm, eval_env: gym.Env, total_timesteps: int, eval_every_steps: int,
+                       eval_episodes: int, eval_seed: int, test_episodes: int, test_seed: int,
+                       references: Mapping[str, Act] | None = None,
+                       make_act: Callable[[BaseAlgorithm], Act] = deterministic_act) -> dict[str, Any]:
+    """Train ``model`` with periodic evaluation, restore the best checkpoint, test it on fresh episodes.
+
+    The checkpoint is chosen on the evaluation episodes (seed ``eval_seed``) and reported on
+    ``test_episodes`` others (seed ``test_seed``), so the reported return is not the maximum of noisy
+    estimates. ``references`` (e.g. uniform, expert) are run on the same test episodes. ``make_act`` turns
+    the model into the evaluated action function (default: SB3's deterministic ``predict``).
+    """
+    callback = EvalCheckpointCallback(eval_env, eval_every_steps, eval_episodes, eval_seed, make_act,
+                                      eval_at_start=False)
+    start = time.perf_counter()
+    model.learn(total_timesteps=total_timesteps, callback=callback)
+    seconds = time.perf_counter() - start
+    best = callback.restore_best()
+    test = run_episodes(make_act(model), eval_env, test_episodes, test_seed)
+    refs = {name: float(run_episodes(act, eval_env, test_episodes, test_seed).returns.mean())
+            for name, act in (references or {}).items()}
+    return {"return": float(test.returns.mean()), "success": float(test.success.mean()),
+            "best_step": best.step, "best_eval_return": best.mean_return,
+            "final_eval_return": callback.history[-1].mean_return,
+            "eval_curve": [[r.step, r.mean_return, r.success] for r in callback.history],
+            "reference_returns": refs, "train_seconds": seconds}
+
+
+def summarize_over_goals(per_goal: Sequence[Mapping[str, Any]], keys: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Mean ± standard error over goals of each key (each goal's value already averaged over seeds)."""
+    out = {}
+    for key in keys:
+        mean, sem = mean_sem(np.array([g[key] for g in per_goal], dtype=np.float64))
+        out[key] = {"mean": mean, "sem": sem}
+    return out
+
+
+def from_scratch_record(per_goal: Sequence[Mapping[str, Any]], keys: Sequence[str], wall_start: float,
+                        cpu_start: float) -> dict[str, Any]:
+    """The part of a from-scratch baseline's JSON every algorithm shares: protocol, summary, cost, machine."""
+    return {"selection": "best checkpoint by mean evaluation return (fixed-seed episodes), reported on fresh episodes",
+            **summarize_over_goals(per_goal, keys), "n_goals": len(per_goal), "per_goal": list(per_goal),
+            "wall_seconds": time.perf_counter() - wall_start, "cpu_seconds": time.process_time() - cpu_start,
+            "platform": platform.platform(), "torch_threads": torch.get_num_threads()}

@@ -1,0 +1,134 @@
+"""Test shorthands: a PreferenceDataModule from one flat list of keyword arguments.
+
+Each keyword goes where it belongs (the family, the setting or the DataModule), with the settings each
+family's configs use (configs/*.yaml), so a test names only what it changes.
+"""
+
+from __future__ import annotations
+
+import inspect
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from icprl_lightning.data import PreferenceDataModule
+from icprl_lightning.data.settings import (
+    BanditDuels,
+    RewardContexts,
+    RewardTrajectories,
+    StepPreferences,
+    TrajectoryPairs,
+)
+from icprl_lightning.data.settings.base import rollout_behavior
+from icprl_lightning.data.settings.trajectory_pairs import label_trajectory_pairs
+from icprl_lightning.families.darkroom import DarkRoomFamily
+from icprl_lightning.families.dueling_bandit import LinearDuelingBanditFamily
+
+REPO = Path(__file__).resolve().parents[1]
+SETTINGS = {"step_preference": StepPreferences, "reward": RewardContexts, "trajectory_preference": TrajectoryPairs,
+            "reward_trajectory": RewardTrajectories}
+REACH_SETTING = {"val_trajectories_per_task": 2, "eval_contexts_per_task": 4, "calibration_episodes": 8,
+                 "reference_episodes": 6}
+
+
+def _params(cls: type) -> set[str]:
+    names = set()
+    for klass in cls.__mro__:
+        if "__init__" in vars(klass):
+            names |= {p for p in inspect.signature(klass.__init__).parameters if p not in ("self", "kwargs")}
+    return names
+
+
+def build(family_cls: type, setting_cls: type, defaults: dict[str, Any], kw: dict[str, Any],
+          renames: dict[str, str] | None = None) -> PreferenceDataModule:
+    kw = {(renames or {}).get(k, k): v for k, v in {**defaults, **kw}.items()}
+    fam = {k: kw.pop(k) for k in list(kw) if k in _params(family_cls)}
+    setting = {k: kw.pop(k) for k in list(kw) if k in _params(setting_cls)}
+    return PreferenceDataModule(family=family_cls(**fam), setting=setting_cls(**setting), **kw)
+
+
+def darkroom_data(context_kind: str = "step_preference", **kw: Any) -> PreferenceDataModule:
+    defaults = {"trajectories_per_task": 60} if context_kind in ("trajectory_preference", "reward_trajectory") else {}
+    kw.setdefault("reference_episodes", kw.get("calibration_episodes", 25))  # DarkRoom's configs: the same count
+    return build(DarkRoomFamily, SETTINGS[context_kind], defaults, kw)
+
+
+def reach_data(context_kind: str = "step_preference", **kw: Any) -> PreferenceDataModule:
+    from icprl_lightning.families.metaworld_reach import ReachTaskFamily
+
+    defaults = dict(REACH_SETTING)
+    if context_kind == "step_preference":
+        defaults.update(first_policy="low", train_policy="high", bt_temperature=0.02, trajectories_per_task=20)
+    elif context_kind == "reward":
+        defaults.update(trajectories_per_task=20)
+    else:
+        defaults.update(train_policy="pretraining", trajectories_per_task=10)
+    renames = {"n_train_tasks": "n_train", "n_test_tasks": "n_test", "tprl_quality": "pretraining_target"}
+    return build(ReachTaskFamily, SETTINGS[context_kind], defaults, kw, renames)
+
+
+def bandit_data(**kw: Any) -> PreferenceDataModule:
+    return build(LinearDuelingBanditFamily, BanditDuels, {"pairs": True}, kw)
+
+
+def step_contexts(family, goals, p_second, bt_temperature, rng, p_first=None, **setting_kw):
+    """I-PRL contexts of ``StepPreferences`` with one mixing level per row (``p_second`` [N]); the first
+    side is uniform, or the mixture at ``p_first`` (one level for all rows)."""
+    n = len(goals)
+    setting = StepPreferences(first_policy="uniform" if p_first is None else "low", bt_temperature=bt_temperature,
+                              **setting_kw)
+    mixing = np.array([0.0 if p_first is None else p_first, *np.broadcast_to(p_second, (n,))])
+    return setting.contexts(family, goals, 1 + np.arange(n), mixing, rng, False, False, "")
+
+
+def reward_contexts(family, goals, p, rng):
+    """DPT reward contexts of ``RewardContexts`` with one mixing level per row."""
+    return RewardContexts().contexts(family, goals, np.arange(len(goals)), np.asarray(p, dtype=float), rng, False,
+                                     False, "")
+
+
+def trajectory_pairs(family, goals, p, bt_temperature, rng, behavior=False, queries=False):
+    """T-PRL pairs with their latent rewards kept apart: ``(arrays, rewards, stats)``, one mixing level per row."""
+    n, k = len(goals), 3 if behavior else 2
+    roll = rollout_behavior(family, np.tile(goals, (k, 1)), np.tile(p, k), rng, episodes=True, progress=False,
+                            description="")
+    arrays, rewards, stats = label_trajectory_pairs(roll["states"], roll["actions"], roll["rewards"], n,
+                                                    bt_temperature, rng, behavior)
+    if queries:
+        visited = np.concatenate([roll["states"][:n], roll["states"][n:2 * n]], axis=1)
+        optimal = np.concatenate([roll["optimal"][:n], roll["optimal"][n:2 * n]], axis=1)
+        arrays.update(family.oracle.query_labels(goals, visited, optimal, family.horizon, rng))
+    return arrays, rewards, stats
+
+
+FAMILY_PARAMS = {"darkroom": ({"size", "horizon", "n_train_tasks", "n_test_tasks", "terminate_on_goal", "seed"}, {}),
+                 "reach": ({"seed", "n_train", "n_test", "horizon", "num_workers"},
+                           {"n_train_tasks": "n_train", "n_test_tasks": "n_test",
+                            "tprl_quality": "pretraining_target"}),
+                 "bandit": ({"n_arms", "dim", "horizon", "seed", "bt_temperature", "dts_alpha"}, {})}
+DATAMODULE_PARAMS = set(inspect.signature(PreferenceDataModule.__init__).parameters) - {"self", "family", "setting"}
+
+
+def cli_data_args(family: str, **kw: Any) -> list[str]:
+    """``--data.init_args...`` command-line arguments, each routed to the family, the setting or the DataModule."""
+    params, renames = FAMILY_PARAMS[family]
+    out = []
+    for key, value in kw.items():
+        key = renames.get(key, key)
+        where = "" if key in DATAMODULE_PARAMS else "family.init_args." if key in params else "setting.init_args."
+        text = str(value).lower() if isinstance(value, bool) else str(value)
+        if isinstance(value, list | tuple):
+            text = "[" + ", ".join(map(str, value)) + "]"
+        out += [f"--data.init_args.{where}{key}", text]
+    return out
+
+
+def config_args(config: str | Path) -> list[str]:
+    """``--config`` arguments for a config; an overlay (``configs/paper/``) is stacked on its ``# base:``."""
+    path = Path(config)
+    base = re.search(r"^# base: (\S+)$", path.read_text(), re.M)
+    if base is None:
+        return ["--config", str(path)]
+    return ["--config", str(REPO / base.group(1)), "--config", str(path)]
