@@ -199,7 +199,7 @@ def test_dqn_from_scratch_command_tiny_budget(tmp_path):
 
 @pytest.mark.slow
 def test_sac_oracle_command_per_task(tmp_path):
-    from icprl_lightning.oracles import sac
+    from icprl_lightning.families.metaworld_reach import sac
 
     out = sac.main(["--goals", "train", "--goal-index", "0", "--timesteps", "300", "--checkpoint-every", "150",
                     "--eval-episodes", "1", "--horizon", "30", "--out", str(tmp_path / "o")])
