@@ -1,0 +1,2 @@
+"""Task families: the one extension point (``base.py``), and DarkRoom, Meta-World Reach and the linear
+dueling bandits, each in its own folder (its env, its oracle, its family class)."""

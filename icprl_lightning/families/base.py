@@ -4,7 +4,12 @@ A *task family* is a distribution of tasks sharing states and actions (DarkRoom 
 goals, dueling-bandit reward vectors). The generic recipes of ``icprl_lightning.data.settings`` (I-PRL
 step preferences, T-PRL trajectory pairs, DPT reward contexts, DIT reward trajectories) need from a
 family only what ``TaskFamily`` and ``Oracle`` declare here, so a new environment is one class of each
-(``docs/extending.md`` walks through one).
+(``docs/extending.md`` walks through one). ``Family`` is what every family has, MDP or not: the dueling
+bandits are a ``Family`` with their own setting (``data/settings/bandit_duels.py``).
+
+Base classes rather than ``typing.Protocol``: jsonargparse accepts a Protocol only when every method's
+signature matches it exactly, which makes a user's family fail with an opaque "does not implement
+protocol"; a subclass gets the defaults below and a clear error for what it lacks.
 
 Vocabulary:
 
