@@ -12,13 +12,33 @@ The paper's context datasets (section 4.1 and the DPT preliminaries):
 only for the DIT oracle baseline and RewardGen's estimates r̂ in ICRG), no goal, no A* and no Q*.
 
 Actions are ``int64`` indices of shape ``[B, T]`` for discrete action spaces and ``float32`` vectors of
-shape ``[B, T, A]`` for continuous ones. ``validate`` raises ``ValueError`` naming the expected shape.
+shape ``[B, T, A]`` for continuous ones.
+
+``validate(state_dim, action_spec)`` checks every field and returns the context *normalized* (a new
+object; the argument is unchanged); ``Agent.reset`` uses what it returns. Anything it cannot take as
+meant is a ``ValueError`` naming the field, the expected shape/dtype/range and what was given:
+
+* shapes: ``B ≥ 1`` contexts of ``T ≥ 1`` steps (an empty context would put the query at a position
+  the model never saw), every field's shape as documented on each class;
+* states, rewards and continuous actions: floating tensors (float16/bfloat16/float64 are converted to
+  float32, the model's dtype; integer and bool refused), every value finite — NaN, ±inf and float64
+  values beyond float32's range are refused;
+* discrete actions: integer tensors (any integer dtype, converted to int64) holding indices in
+  ``[0, n)``; float and bool refused (a bool action tensor is ambiguous);
+* ``preferred``: exactly 0 or 1 — int, float (0.0/1.0) or bool labels — returned as float32 (how
+  batches serve them); 2, −1, 0.5 or NaN are refused, never thresholded.
+
+Non-tensor inputs: a ``numpy.ndarray`` of a numeric dtype is converted (copied) and then follows the
+same rules; anything else (lists, scalars, None, object arrays) is refused — a nested list has no
+definite dtype. ``check_stored_splits`` applies the same value rules to a dataset's memory-mapped
+arrays, once, when a DataModule loads them.
 """
 
 from __future__ import annotations
 
 from dataclasses import MISSING, dataclass, fields
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -40,25 +60,99 @@ class ActionSpec:
         return f"[{lead}] int64" if self.discrete else f"[{lead}, {self.size}] float32"
 
 
-def _check(name: str, x: Tensor, shape: tuple[int | None, ...], floating: bool | None, expected: str) -> None:
-    if not isinstance(x, Tensor):
-        raise ValueError(f"{name} must be a torch.Tensor of shape {expected}, got {type(x).__name__}")
+_UNSIGNED = (torch.uint16, torch.uint32, torch.uint64)  # "shell" dtypes: few ops; converted to int64 first
+
+
+def as_tensor(name: str, x, expected: str) -> Tensor:
+    """``x`` as a tensor: tensors as they are, numpy arrays of a numeric dtype converted (copied).
+
+    Anything else (lists, scalars, None, object or string arrays) is refused: a nested list has no
+    definite dtype or shape, so the rules below could not say what it was meant to be.
+    """
+    if isinstance(x, Tensor):
+        return x
+    if isinstance(x, np.ndarray):
+        if x.dtype.kind not in "biuf":
+            raise ValueError(f"{name} must be a torch.Tensor of shape {expected}; got a numpy array of dtype "
+                             f"{x.dtype}")
+        return torch.from_numpy(np.array(x, dtype=x.dtype.newbyteorder("=")))
+    raise ValueError(f"{name} must be a torch.Tensor (or numpy.ndarray) of shape {expected}, got {type(x).__name__}")
+
+
+def _check(name: str, x, shape: tuple[int | None, ...], floating: bool | None, expected: str) -> Tensor:
+    x = as_tensor(name, x, expected)
+    if x.is_complex() or x.is_sparse or x.is_quantized:
+        raise ValueError(f"{name} must be a real, dense tensor of shape {expected}, got {x.dtype} ({x.layout})")
     ok_shape = x.dim() == len(shape) and all(s is None or s == d for s, d in zip(shape, x.shape, strict=True))
     if not ok_shape:
         raise ValueError(f"{name} must have shape {expected}, got {list(x.shape)}")
     if floating is True and not x.is_floating_point():
         raise ValueError(f"{name} must be a floating tensor of shape {expected}, got dtype {x.dtype}")
-    if floating is False and (x.is_floating_point() or x.is_complex()):
+    if floating is False and x.is_floating_point():
         raise ValueError(f"{name} must be an integer tensor of shape {expected}, got dtype {x.dtype}")
+    return x
 
 
-def _check_actions(name: str, x: Tensor, b: int, t: int, spec: ActionSpec) -> None:
-    if spec.discrete:
-        _check(name, x, (b, t), False, f"[B={b}, T={t}] int64")
-        if x.numel() and (x.min() < 0 or x.max() >= spec.size):
-            raise ValueError(f"{name} holds action indices outside [0, {spec.size})")
-    else:
-        _check(name, x, (b, t, spec.size), True, f"[B={b}, T={t}, A={spec.size}] float32")
+def check_floats(name: str, x, shape: tuple[int | None, ...], expected: str) -> Tensor:
+    """A floating tensor of ``shape``, every value finite, returned as float32 (float64/16 converted)."""
+    x = _check(name, x, shape, True, expected)
+    y = x.to(torch.float32)
+    bad = ~torch.isfinite(y)
+    if bad.any():
+        n_nan = int(torch.isnan(y).sum())
+        n_inf = int(bad.sum()) - n_nan
+        note = ""
+        if x.dtype == torch.float64 and int(torch.isinf(x).sum()) < n_inf:
+            note = " (float64 values beyond float32's range, |x| > 3.4e38, count as inf)"
+        raise ValueError(f"{name} must hold finite values, shape {expected}; got {n_nan} NaN and {n_inf} "
+                         f"inf of {y.numel()} values{note}")
+    return y
+
+
+def _found(x: Tensor, bad: Tensor, original: torch.dtype) -> list:
+    values = torch.unique(x[bad])[:5].tolist()
+    return [v % 2**64 for v in values] if original == torch.uint64 else values
+
+
+def _check_labels(name: str, x, shape: tuple[int, ...], expected: str) -> Tensor:
+    """Preference labels exactly 0 or 1 (int, float or bool), returned as float32 (how batches serve them)."""
+    x = _check(name, x, shape, None, expected)
+    original = x.dtype
+    y = x.to(torch.int64) if original in _UNSIGNED else x
+    y = y.to(torch.float64) if y.is_floating_point() else y
+    bad = (y != 0) & (y != 1)
+    if bad.any():
+        raise ValueError(f"{name} must hold only 0 or 1 (1 = the first of the pair won), shape {expected}; "
+                         f"got {int(bad.sum())} other values, e.g. {_found(y, bad, original)}")
+    return y.to(torch.float32)
+
+
+def _check_actions(name: str, x, b: int, t: int, spec: ActionSpec) -> Tensor:
+    """Discrete: integer indices in [0, n) as int64 (bool refused). Continuous: finite floats as float32."""
+    if not spec.discrete:
+        return check_floats(name, x, (b, t, spec.size), f"[B={b}, T={t}, A={spec.size}] float32")
+    expected = f"[B={b}, T={t}] int64 indices in [0, {spec.size})"
+    x = _check(name, x, (b, t), False, expected)
+    if x.dtype == torch.bool:
+        raise ValueError(f"{name} must be an integer tensor of shape {expected}, got dtype torch.bool "
+                         "(bool actions are ambiguous: pass the action indices)")
+    y = x.to(torch.int64)
+    bad = (y < 0) | (y >= spec.size)
+    if bad.any():
+        raise ValueError(f"{name} holds action indices outside [0, {spec.size}), shape {expected}; got "
+                         f"{int(bad.sum())} such values, e.g. {_found(y, bad, x.dtype)}")
+    return y
+
+
+def _check_steps(name: str, x: Tensor, axis: str = "T") -> tuple[int, int]:
+    """The batch size and the number of steps of a context's first field: both at least 1."""
+    b, t = x.shape[:2]
+    if b == 0:
+        raise ValueError(f"{name} holds no contexts (B = 0, shape {list(x.shape)}): a batch needs at least one")
+    if t == 0:
+        raise ValueError(f"{name} holds an empty context ({axis} = 0, shape {list(x.shape)}): a context needs at "
+                         "least one step (the query would sit at a position the model never saw)")
+    return b, t
 
 
 class _Context:
@@ -84,12 +178,13 @@ class StepPreferenceContext(_Context):
     alt_actions: Tensor  # [B, T] int64 | [B, T, A] float
     preferred: Tensor    # [B, T] in {0, 1}
 
-    def validate(self, state_dim: int, action_spec: ActionSpec) -> None:
-        _check("states", self.states, (None, None, state_dim), True, f"[B, T, S={state_dim}] float32")
-        b, t = self.states.shape[:2]
-        _check_actions("actions", self.actions, b, t, action_spec)
-        _check_actions("alt_actions", self.alt_actions, b, t, action_spec)
-        _check("preferred", self.preferred, (b, t), None, f"[B={b}, T={t}] with values in {{0, 1}}")
+    def validate(self, state_dim: int, action_spec: ActionSpec) -> StepPreferenceContext:
+        states = check_floats("states", self.states, (None, None, state_dim), f"[B, T, S={state_dim}] float32")
+        b, t = _check_steps("states", states)
+        return StepPreferenceContext(
+            states, _check_actions("actions", self.actions, b, t, action_spec),
+            _check_actions("alt_actions", self.alt_actions, b, t, action_spec),
+            _check_labels("preferred", self.preferred, (b, t), f"[B={b}, T={t}] with values in {{0, 1}}"))
 
 
 @dataclass
@@ -101,12 +196,13 @@ class RewardContext(_Context):
     rewards: Tensor      # [B, T]
     next_states: Tensor  # [B, T, S]
 
-    def validate(self, state_dim: int, action_spec: ActionSpec) -> None:
-        _check("states", self.states, (None, None, state_dim), True, f"[B, T, S={state_dim}] float32")
-        b, t = self.states.shape[:2]
-        _check_actions("actions", self.actions, b, t, action_spec)
-        _check("rewards", self.rewards, (b, t), True, f"[B={b}, T={t}] float32")
-        _check("next_states", self.next_states, (b, t, state_dim), True, f"[B={b}, T={t}, S={state_dim}] float32")
+    def validate(self, state_dim: int, action_spec: ActionSpec) -> RewardContext:
+        states = check_floats("states", self.states, (None, None, state_dim), f"[B, T, S={state_dim}] float32")
+        b, t = _check_steps("states", states)
+        return RewardContext(
+            states, _check_actions("actions", self.actions, b, t, action_spec),
+            check_floats("rewards", self.rewards, (b, t), f"[B={b}, T={t}] float32"),
+            check_floats("next_states", self.next_states, (b, t, state_dim), f"[B={b}, T={t}, S={state_dim}] float32"))
 
 
 @dataclass
@@ -131,19 +227,24 @@ class TrajectoryPreferenceContext(_Context):
         """ξ_a's states [B, H, S]: the step axis of the context (one token per step of the pair)."""
         return self.states_a
 
-    def validate(self, state_dim: int, action_spec: ActionSpec) -> None:
-        _check("states_a", self.states_a, (None, None, state_dim), True, f"[B, H, S={state_dim}] float32")
-        b, h = self.states_a.shape[:2]
-        _check_actions("actions_a", self.actions_a, b, h, action_spec)
-        _check("states_b", self.states_b, (b, h, state_dim), True, f"[B={b}, H={h}, S={state_dim}] float32")
-        _check_actions("actions_b", self.actions_b, b, h, action_spec)
-        _check("preferred", self.preferred, (b,), None, f"[B={b}] with values in {{0, 1}}")
+    def validate(self, state_dim: int, action_spec: ActionSpec) -> TrajectoryPreferenceContext:
+        states_a = check_floats("states_a", self.states_a, (None, None, state_dim), f"[B, H, S={state_dim}] float32")
+        b, h = _check_steps("states_a", states_a, "H")
+        out = dict(
+            states_a=states_a, actions_a=_check_actions("actions_a", self.actions_a, b, h, action_spec),
+            states_b=check_floats("states_b", self.states_b, (b, h, state_dim),
+                                  f"[B={b}, H={h}, S={state_dim}] float32"),
+            actions_b=_check_actions("actions_b", self.actions_b, b, h, action_spec),
+            preferred=_check_labels("preferred", self.preferred, (b,), f"[B={b}] with values in {{0, 1}}"))
         if (self.behavior_states is None) != (self.behavior_actions is None):
             raise ValueError("behavior_states and behavior_actions come together: set both or neither")
         if self.behavior_states is not None:
-            _check("behavior_states", self.behavior_states, (b, None, state_dim), True,
-                   f"[B={b}, T, S={state_dim}] float32")
-            _check_actions("behavior_actions", self.behavior_actions, b, self.behavior_states.shape[1], action_spec)
+            states = check_floats("behavior_states", self.behavior_states, (b, None, state_dim),
+                                  f"[B={b}, T, S={state_dim}] float32")
+            _, t = _check_steps("behavior_states", states)
+            out.update(behavior_states=states,
+                       behavior_actions=_check_actions("behavior_actions", self.behavior_actions, b, t, action_spec))
+        return TrajectoryPreferenceContext(**out)
 
 
 @dataclass
@@ -154,11 +255,12 @@ class RewardTrajectoryContext(_Context):
     actions: Tensor  # [B, T] | [B, T, A]
     rewards: Tensor  # [B, T]
 
-    def validate(self, state_dim: int, action_spec: ActionSpec) -> None:
-        _check("states", self.states, (None, None, state_dim), True, f"[B, T, S={state_dim}] float32")
-        b, t = self.states.shape[:2]
-        _check_actions("actions", self.actions, b, t, action_spec)
-        _check("rewards", self.rewards, (b, t), True, f"[B={b}, T={t}] float32")
+    def validate(self, state_dim: int, action_spec: ActionSpec) -> RewardTrajectoryContext:
+        states = check_floats("states", self.states, (None, None, state_dim), f"[B, T, S={state_dim}] float32")
+        b, t = _check_steps("states", states)
+        return RewardTrajectoryContext(
+            states, _check_actions("actions", self.actions, b, t, action_spec),
+            check_floats("rewards", self.rewards, (b, t), f"[B={b}, T={t}] float32"))
 
 
 CONTEXT_TYPES: dict[str, type[_Context]] = {
@@ -183,3 +285,57 @@ def context_from_batch(kind: str, batch: dict[str, Tensor], prefix: str = ""):
     cls = CONTEXT_TYPES[kind]
     return cls(**{f.name: batch[prefix + f.name] for f in fields(cls)
                   if f.default is MISSING or prefix + f.name in batch})
+
+
+# ---- stored datasets: the same value rules over memory-mapped arrays, by field name ----------------
+LABEL_NAMES = ("preferred",)
+ACTION_NAMES = ("actions", "alt_actions", "actions_a", "actions_b", "behavior_actions", "optimal_actions",
+                "next_actions", "next_alt_actions")
+STEP_NAMES = ("states", "states_a", "states_b", "behavior_states", "next_states")  # [N, T, S]: T >= 1
+_CHUNK_VALUES = 1 << 22  # values per vectorized check: bounds the temporary memory on large datasets
+
+
+def _row_chunks(x: np.ndarray):
+    per_row = int(np.prod(x.shape[1:], dtype=np.int64)) if x.ndim > 1 else 1
+    step = max(1, _CHUNK_VALUES // max(per_row, 1))
+    for lo in range(0, len(x), step):
+        yield np.asarray(x[lo:lo + step])
+
+
+def _stored_problem(name: str, x: np.ndarray, spec: ActionSpec) -> str | None:
+    """What is wrong with one stored field (None if nothing): finite floats, {0, 1} labels, index range, T ≥ 1."""
+    if name in STEP_NAMES and x.ndim >= 2 and x.shape[1] == 0:
+        return f"holds empty contexts (T = 0, shape {list(x.shape)}); every context needs at least one step"
+    kind = x.dtype.kind
+    if kind not in "biuf":
+        return f"has dtype {x.dtype}; expected a numeric array"
+    discrete_action = name in ACTION_NAMES and spec.discrete
+    if discrete_action and kind not in "iu":
+        return f"has dtype {x.dtype}; discrete actions must be integer indices in [0, {spec.size})"
+    for chunk in _row_chunks(x):
+        if kind == "f" and not np.isfinite(chunk).all():
+            return (f"holds {int(np.isnan(chunk).sum())} NaN and {int(np.isinf(chunk).sum())} inf values in one "
+                    f"block of rows; every value must be finite")
+        if name in LABEL_NAMES:
+            bad = (chunk != 0) & (chunk != 1)
+            if bad.any():
+                found = np.unique(chunk[bad])[:5].tolist()
+                return f"must hold only 0 or 1 (1 = the first of the pair won); found {found}"
+        if discrete_action and chunk.size and (chunk.min() < 0 or chunk.max() >= spec.size):
+            bad = (chunk < 0) | (chunk >= spec.size)
+            return f"holds action indices outside [0, {spec.size}): found {np.unique(chunk[bad])[:5].tolist()}"
+    return None
+
+
+def check_stored_splits(splits: dict[str, dict[str, np.ndarray]], action_spec: ActionSpec, where: str) -> None:
+    """Check every split's context fields once (vectorized, in row blocks); ``ValueError`` names split, field, path.
+
+    Every floating array must be finite; ``preferred`` in {0, 1}; discrete action fields integer indices in
+    ``[0, n)``; state fields at least one step long. Fields are recognized by name (``ACTION_NAMES``, ...).
+    """
+    for split, arrays in splits.items():
+        for name, x in arrays.items():
+            problem = _stored_problem(name, x, action_spec)
+            if problem is not None:
+                raise ValueError(f"Dataset {where}: split {split!r}, field {name!r} ({split}/{name}.npy, shape "
+                                 f"{list(x.shape)}, dtype {x.dtype}) {problem}")

@@ -16,18 +16,21 @@ DPT, DP²T and ICPO act with the argmax of T_θ(· | s_h, D) by default (ICRG sa
 samples a_h ~ T_θ(· | s_h, D) as the paper's text writes it. Greedy is their default because ICPO's
 λ < 1 objective leaves probability mass on the non-preferred actions, so the sampled policy is much
 noisier than its mode (docs/RESULTS.md reports both).
-Continuous actions are the policy mean. Wrong shapes or dtypes raise ``ValueError`` naming the expected shape.
+Continuous actions are the policy mean. Wrong shapes, dtypes or values (labels outside {0, 1}, NaN/inf,
+an empty context, bool or out-of-range actions) raise ``ValueError`` naming the field and what it expects;
+float64 inputs are converted to float32 (``contexts.py`` lists the rules). Calling ``act`` before
+``reset`` is a ``RuntimeError``, as is a policy output that is not finite.
 """
 
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import Tensor
 
-from icprl_lightning.contexts import CONTEXT_TYPES
+from icprl_lightning.contexts import CONTEXT_TYPES, as_tensor, check_floats
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.models.transformer import KVCache
 
@@ -56,15 +59,20 @@ class Agent:
 
     @torch.no_grad()
     def reset(self, context) -> None:
-        """Condition on a new batch of contexts (encoded once, at the first ``act``)."""
+        """Condition on a new batch of contexts (encoded once, at the first ``act``).
+
+        The context is validated and normalized (``contexts.py``: dtypes converted where lossless, invalid
+        values refused with a ``ValueError`` naming the field). A failed reset leaves the agent without a
+        context, so a later ``act`` cannot silently use the previous one.
+        """
+        self.context, self.cache = None, None
         if not isinstance(context, self.context_type):
             raise ValueError(f"this agent takes a {self.context_type.__name__}, got {type(context).__name__}")
-        context.validate(self.policy.state_dim, self.policy.action_spec)
+        context = context.validate(self.policy.state_dim, self.policy.action_spec)
         length, limit = context.states.shape[1], self.policy.transformer.max_context
         if length > limit:
             raise ValueError(f"context holds {length} steps; this model was trained for at most {limit}")
         self.context = context.to(self.device)
-        self.cache = None  # encoded by the first act(); act_each_prefix() does not need it
 
     @torch.no_grad()
     def act(self, obs: Tensor) -> Tensor:
@@ -90,8 +98,8 @@ class Agent:
         chunk bounds memory); the KV cache is neither used nor changed.
         """
         obs = self._check_obs(obs)
-        if batch_chunk < 1:
-            raise ValueError(f"batch_chunk must be >= 1, got {batch_chunk}")
+        if isinstance(batch_chunk, bool) or not isinstance(batch_chunk, int) or batch_chunk < 1:
+            raise ValueError(f"batch_chunk must be an int >= 1, got {batch_chunk!r}")
         b, t = self.context.batch_size, self.context.states.shape[1]
         visible = torch.arange(1, t + 1, device=self.device)  # query h sees D_{1:h}
         out = []
@@ -102,16 +110,30 @@ class Agent:
         return self._choose(torch.cat(out))  # (B, T, A) -> (B, T) | (B, T, A)
 
     def _check_obs(self, obs: Tensor) -> Tensor:
+        """obs [B, S] floating (float64/16 converted to float32; numpy arrays accepted), every value finite."""
         if self.context is None:
             raise RuntimeError("call reset(context) before act(obs)")
         b, s = self.context.batch_size, self.policy.state_dim
-        if not isinstance(obs, Tensor) or obs.shape != (b, s) or not obs.is_floating_point():
-            got = f"{list(obs.shape)} {obs.dtype}" if isinstance(obs, Tensor) else type(obs).__name__
+        expected = f"[B={b}, S={s}] float32"
+        if isinstance(obs, np.ndarray) and obs.dtype.kind in "biuf":
+            obs = as_tensor("obs", obs, expected)
+        if (not isinstance(obs, Tensor) or obs.shape != (b, s) or not obs.is_floating_point()
+                or obs.is_complex()):
+            got = f"{list(obs.shape)} {obs.dtype}" if isinstance(obs, Tensor | np.ndarray) else type(obs).__name__
             raise ValueError(f"obs must be a float tensor of shape [B={b}, S={s}], got {got}")
-        return obs.to(self.device)
+        return check_floats("obs", obs, (b, s), expected).to(self.device)
 
     def _choose(self, out: Tensor) -> Tensor:
-        """Logits or means (..., A) -> actions: the mean (continuous), argmax or a sample (discrete)."""
+        """Logits or means (..., A) -> actions: the mean (continuous), argmax or a sample (discrete).
+
+        Finite inputs of huge magnitude can overflow the network; a non-finite output is an error, never
+        a NaN action or an arbitrary argmax.
+        """
+        if not torch.isfinite(out).all():
+            rows = int((~torch.isfinite(out)).flatten(1).any(1).sum()) if out.dim() > 1 else 1
+            raise RuntimeError(f"the policy's output is not finite (NaN or inf) for {rows} of {out.shape[0]} rows: "
+                               "finite inputs of very large magnitude overflow the network (or its weights are "
+                               "not finite); rescale the states/rewards to the range the model was trained on")
         if not self.policy.action_spec.discrete:
             return out
         if self.greedy:
@@ -126,20 +148,12 @@ def load_agent(checkpoint: str | Path, greedy: bool | None = None, use_cache: bo
 
     ``greedy`` None keeps the method's own default (argmax / Gaussian mean for DPT, DP²T and ICPO;
     sampling for ICRG, whose advantage-weighted policy collapses at its argmax); True or False forces it.
+    The file is read as untrusted (``checkpoints.py``): ``weights_only=True``, the class from the allow-list
+    of this package's methods, the stored checksum verified; any problem is one ``ValueError`` (or
+    ``FileNotFoundError``) naming the path.
     """
-    path = Path(checkpoint)
-    if not path.is_file():
-        raise FileNotFoundError(f"No checkpoint at {path}")
-    try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=False)
-    except Exception as e:  # torch raises many types for a damaged file
-        raise ValueError(f"{path} is not a readable checkpoint ({type(e).__name__}: {e})") from None
-    class_path = ckpt.get("icprl_class_path") if isinstance(ckpt, dict) else None
-    if class_path is None:
-        raise ValueError(f"{path} is not an icprl_lightning checkpoint (no 'icprl_class_path' entry)")
-    module_name, _, cls_name = class_path.rpartition(".")
-    cls = getattr(importlib.import_module(module_name), cls_name)
-    module = cls.load_from_checkpoint(path, map_location=map_location, weights_only=False)
-    module.eval()
+    from icprl_lightning.checkpoints import load_module
+
+    module = load_module(checkpoint, map_location=map_location)
     options = {} if greedy is None else {"greedy": greedy}
     return module.make_agent(use_cache=use_cache, seed=seed, **options)

@@ -1,17 +1,26 @@
 """Atomic file output, the one way this package writes anything a reader may see half-done.
 
 * ``staged_directory``: fill a hidden sibling directory, rename it into place on success (datasets,
-  SAC checkpoint sets).
+  SAC checkpoint sets). It replaces an existing directory only if that is one of ours: a directory
+  holding the caller's marker file (``manifest.json``, ``summary.json``) with the caller's
+  ``schema_version`` (``check_replaceable``); anything else — a directory of user files, a plain file,
+  a symbolic link — is refused with ``NotReplaceableError``, overwrite or not.
+* ``path_lock``: an exclusive ``fcntl.flock`` on ``<parent>/.<name>.lock``, re-entrant within a process,
+  so that two processes writing the same path take turns; ``staged_directory`` holds it while staging.
 * ``write_json_atomic``: a JSON file through a temporary file and ``os.replace`` (result records).
 * ``sha256`` (file checksums of the dataset manifest) and ``jsonable`` (numpy values to JSON types).
 """
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import hashlib
 import json
+import logging
 import os
 import shutil
+import threading
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -19,6 +28,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 
 def sha256(path: Path) -> str:
@@ -42,31 +53,210 @@ def jsonable(x: Any) -> Any:
     return x
 
 
+# ---- is this ours? ---------------------------------------------------------------------------------------
+
+class NotReplaceableError(FileExistsError):
+    """``path`` exists and is not a directory this package wrote, so it is never deleted or replaced."""
+
+
+def check_replaceable(path: str | Path, marker: str, schema_version: int, what: str) -> None:
+    """Raise ``NotReplaceableError`` unless ``path`` is a directory of ours (or does not exist).
+
+    Ours: a real directory (not a symbolic link) whose ``marker`` file is readable JSON with
+    ``"schema_version": schema_version``. ``what`` names the kind in the message ("icprl dataset").
+    """
+    path = Path(path)
+    refuse = "refusing to delete or replace it, even with overwrite; remove it yourself or choose another path"
+    if path.is_symlink():
+        raise NotReplaceableError(f"{path} is a symbolic link (to {os.readlink(path)}), not {_a(what)}; {refuse}")
+    if not path.exists():
+        return
+    if not path.is_dir():
+        raise NotReplaceableError(f"{path} exists and is a file, not {_a(what)} directory; {refuse}")
+    try:
+        found = json.loads((path / marker).read_text())
+    except FileNotFoundError:
+        raise NotReplaceableError(f"{path} exists and is not {_a(what)} (it has no {marker}); {refuse}") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise NotReplaceableError(f"{path} exists and is not {_a(what)} ({marker} is unreadable: {e}); "
+                                  f"{refuse}") from None
+    version = found.get("schema_version") if isinstance(found, dict) else None
+    if version != schema_version:
+        raise NotReplaceableError(f"{path} exists and is not {_a(what)} of schema version {schema_version} "
+                                  f"({marker} has schema_version {version!r}); {refuse}")
+
+
+def _a(what: str) -> str:
+    return f"an {what}" if what[:1].lower() in "aeiou" else f"a {what}"
+
+
+# ---- one writer at a time ----------------------------------------------------------------------------------
+
+def lock_file(path: str | Path) -> Path:
+    path = Path(path)
+    return path.parent / f".{path.name}.lock"
+
+
+class _Held:
+    def __init__(self) -> None:
+        self.rlock = threading.RLock()  # threads of one process take turns; re-entrant per thread
+        self.depth = 0
+        self.fd: int | None = None
+
+
+_HELD: dict[str, _Held] = {}
+_HELD_GUARD = threading.Lock()
+
+
 @contextmanager
-def staged_directory(path: str | Path) -> Iterator[Path]:
+def path_lock(path: str | Path) -> Iterator[bool]:
+    """Hold an exclusive ``flock`` on ``<parent>/.<name>.lock`` (created holding the holder's pid, removed on
+    release). Waits for another holder with a log line naming it. Re-entrant within a process.
+
+    Yields whether the lock is held: False (after a warning) on a file system without ``flock``.
+    """
+    lock = lock_file(path)
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    key = str(lock.resolve())
+    with _HELD_GUARD:
+        held = _HELD.setdefault(key, _Held())
+    with held.rlock:
+        if held.depth == 0:
+            held.fd = _acquire(lock, Path(path))
+        held.depth += 1
+        try:
+            yield held.fd is not None
+        finally:
+            held.depth -= 1
+            if held.depth == 0 and held.fd is not None:
+                fd, held.fd = held.fd, None
+                lock.unlink(missing_ok=True)  # while still holding it; a waiter then sees a stale inode, retries
+                os.close(fd)  # releases the flock
+
+
+def _acquire(lock: Path, path: Path) -> int | None:
+    """Open and flock ``lock``; retry when the file was unlinked by its previous holder meanwhile.
+
+    None when the file system does not support ``flock``.
+    """
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                owner = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+                log.warning("%s is being written by another process (pid %s, lock %s); waiting for it to finish",
+                            path, owner, lock)
+                fcntl.flock(fd, fcntl.LOCK_EX)
+                log.warning("%s: the other process (pid %s) finished; continuing", path, owner)
+            except OSError as e:
+                if e.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):
+                    raise
+                log.warning("%s: cannot lock %s (%s); writers of this path are not serialized", path, lock, e)
+                os.close(fd)
+                lock.unlink(missing_ok=True)
+                return None
+            try:
+                current = os.stat(lock)
+            except FileNotFoundError:
+                current = None
+            mine = os.fstat(fd)
+            if current is None or (current.st_dev, current.st_ino) != (mine.st_dev, mine.st_ino):
+                os.close(fd)  # the holder removed that file on release: lock the new one
+                continue
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            return fd
+        except BaseException:
+            os.close(fd)
+            raise
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, another user's
+        return True
+    return True
+
+
+def _leftover_pid(name: str) -> int | None:
+    """The pid in ``.<name>.tmp-<pid>-<hex>`` / ``.<name>.old-<pid>-<hex>``; None if the name has none."""
+    try:
+        return int(name.rsplit(".", 1)[1].split("-")[1])
+    except (IndexError, ValueError):
+        return None
+
+
+def remove_stale(path: str | Path, lock_held: bool) -> list[Path]:
+    """Remove the staging/trash leftovers of ``path`` no live process owns; return what was removed.
+
+    Under the writers' lock (``lock_held``) every leftover is dead: each writer holds the lock while it
+    stages, so none is another's live work (and a pid in a name, reused since, does not keep one
+    forever). Without the lock only those whose pid (``.<name>.tmp-<pid>-<hex>``) is not alive go.
+    """
+    path = Path(path)
+    removed = []
+    for stale in [*path.parent.glob(f".{path.name}.tmp-*"), *path.parent.glob(f".{path.name}.old-*")]:
+        pid = _leftover_pid(stale.name)
+        if lock_held or (pid is not None and pid != os.getpid() and not _pid_alive(pid)):
+            _rmtree(stale)
+            removed.append(stale)
+    return removed
+
+
+def _rmtree(path: Path) -> None:
+    if path.is_symlink() or path.is_file():
+        path.unlink(missing_ok=True)
+    else:
+        shutil.rmtree(path, ignore_errors=True)
+
+
+@contextmanager
+def staged_directory(path: str | Path, *, marker: str, schema_version: int, what: str,
+                     overwrite: bool = False) -> Iterator[Path]:
     """Yield a hidden sibling directory to fill; on success it replaces ``path`` by rename, on error it is removed.
 
-    Leftovers of an interrupted earlier run (killed before cleanup) are removed first. Nothing ever
+    The staged directory must hold ``marker`` (the caller's manifest or summary with ``schema_version``)
+    when the block ends. An existing ``path`` is refused with ``FileExistsError`` unless ``overwrite``, and
+    with ``NotReplaceableError`` unless it is ours (``check_replaceable``) — checked before the block runs
+    and again before the rename. The writer's lock (``path_lock``) is held throughout, so a second writer
+    waits; leftovers of interrupted earlier runs that no live process owns are removed first. Nothing ever
     appears at ``path`` half-written.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    for stale in path.parent.glob(f".{path.name}.tmp-*"):
-        shutil.rmtree(stale, ignore_errors=True)
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    tmp.mkdir()
-    try:
-        yield tmp
-        if path.exists():
-            trash = path.parent / f".{path.name}.old-{uuid.uuid4().hex[:8]}"
-            os.rename(path, trash)
-            os.rename(tmp, path)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.rename(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+
+    def check() -> None:
+        if path.exists() or path.is_symlink():
+            if not overwrite:
+                raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+            check_replaceable(path, marker, schema_version, what)
+
+    with path_lock(path) as locked:
+        check()
+        for stale in remove_stale(path, lock_held=locked):
+            log.info("removed %s, left by an interrupted earlier run", stale)
+        tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        tmp.mkdir()
+        try:
+            yield tmp
+            if not (tmp / marker).is_file():
+                raise RuntimeError(f"staged {what} for {path} has no {marker}; not moving it into place")
+            check()
+            if path.exists():
+                trash = path.parent / f".{path.name}.old-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+                os.rename(path, trash)
+                os.rename(tmp, path)
+                shutil.rmtree(trash, ignore_errors=True)
+            else:
+                os.rename(tmp, path)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
 
 
 def write_json_atomic(path: str | Path, payload: dict[str, Any]) -> Path:

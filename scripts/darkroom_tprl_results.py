@@ -26,6 +26,7 @@ import torch
 import yaml
 
 from icprl_lightning import load_agent
+from icprl_lightning.checkpoints import load_module
 from icprl_lightning.data import PreferenceDataModule
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.data.settings import RewardTrajectories, TrajectoryPairs
@@ -69,7 +70,10 @@ def evaluate(checkpoint: Path, dm: PreferenceDataModule, seeds: list[int], greed
 
 @torch.no_grad()
 def pair_accuracy(checkpoint: Path, dm: PreferenceDataModule) -> dict[str, float]:
-    model = RewardGenModule.load_from_checkpoint(checkpoint, map_location="cpu", weights_only=False).eval()
+    model = load_module(checkpoint)  # weights_only, allow-listed class, checksum verified
+    if not isinstance(model, RewardGenModule):
+        raise ValueError(f"{checkpoint} is a {type(model).__name__} checkpoint, not RewardGen's")
+    model.eval()
     correct = {q: model.pair_correct(batch).float() for q, batch in dm.heldout_pairs().items()}
     return {**{q: float(c.mean()) for q, c in correct.items()}, "all": float(torch.cat(list(correct.values())).mean())}
 

@@ -23,6 +23,7 @@ import json
 import numpy as np
 import torch
 
+from icprl_lightning.checkpoints import load_module  # noqa: E402
 from icprl_lightning.data.batches import other_rows, to_tensor
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.methods.dit import DITModule, swap_roles
@@ -57,13 +58,15 @@ def main() -> None:
         if not np.array_equal(true[k], pref[k]):
             raise ValueError(f"{dit_config} and {icrg_config} do not hold the same trajectories ({k} differs)")
     rows = np.arange(len(pref["preferred"]))
-    other = other_rows(rows, preferences.per_task[1], 1)  # the next validation pair of the same goal
+    other = other_rows(rows, preferences.trajectories_per_task[1], 1)  # the next validation pair of the same goal
     dit_batch = {k: to_tensor(np.asarray(true[k])) for k in (*TRAJECTORY, "rewards_a", "rewards_b")}
     icrg_batch = {k: to_tensor(np.asarray(pref[k])) for k in (*TRAJECTORY, "preferred")}
     icrg_batch.update({f"pair_{k}": to_tensor(np.asarray(pref[k])[other]) for k in (*TRAJECTORY, "preferred")})
 
-    dit = DITModule.load_from_checkpoint(dit_ckpt, map_location="cpu").eval()
-    icrg = ICRGModule.load_from_checkpoint(icrg_ckpt, map_location="cpu").eval()
+    dit, icrg = load_module(dit_ckpt).eval(), load_module(icrg_ckpt).eval()
+    if not (isinstance(dit, DITModule) and isinstance(icrg, ICRGModule)):
+        raise ValueError(f"--dit must be a DIT and --icrg an ICRG checkpoint, got {type(dit).__name__} and "
+                         f"{type(icrg).__name__}")
     dit_adv, reward = advantages(dit, dit_batch)
     icrg_adv, reward_hat = advantages(icrg, icrg_batch)
     progress = reward[:, 1:] - reward[:, :-1]  # step h ≥ 1: distance before it minus distance after it

@@ -17,11 +17,12 @@ PACKAGE = Path(__file__).resolve().parents[1] / "icprl_lightning"
 
 # lowest first; a module's layer is the first entry its dotted name starts with
 LAYERS = [
-    ("contexts", "preferences", "io", "metrics"),   # ground: shared vocabulary
+    ("contexts", "preferences", "io", "metrics", "validation"),   # ground: shared vocabulary, argument checks
     ("families",),                                  # task families, their envs and oracles
     ("data",),                                      # settings (generators), store, DataModules
     ("models",),                                    # plain nn.Modules
-    ("deploy",),                                    # Agent / load_agent over a policy network
+    ("deploy", "checkpoints"),                      # Agent / load_agent; safe checkpoint files (methods by an
+                                                    # allow-list of names, imported by importlib, not statically)
     ("methods",),                                   # LightningModules
     ("evaluation",),                                # rollouts and duels through the Agent
     ("callbacks",),

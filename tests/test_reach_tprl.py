@@ -241,7 +241,7 @@ def test_reward_gen_config_runs_and_reports_heldout_pair_accuracy(reward_gen_run
     path, metrics = reward_gen_run
     assert 0.0 <= metrics["val/metaworld/heldout_pair_accuracy"] <= 1.0
     assert {f"val/metaworld/{q}/pair_accuracy" for q in ("low", "medium", "high")} <= set(metrics)
-    hparams = torch.load(path, map_location="cpu", weights_only=False)["hyper_parameters"]
+    hparams = torch.load(path, map_location="cpu", weights_only=True)["hyper_parameters"]
     assert hparams["max_context"] == H and hparams["action_dim"] == 4 and not hparams["discrete"]
 
 

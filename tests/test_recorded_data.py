@@ -233,7 +233,7 @@ def test_import_fit_icpo_and_deploy(tmp_path, capsys):
           "--data.init_args.batch_size", "8", "--trainer.max_steps", "4", "--trainer.logger", "false",
           "--trainer.default_root_dir", str(runs), "--trainer.enable_progress_bar", "false",
           "--model.init_args.n_layer", "1", "--model.init_args.n_embd", "16", "--model.init_args.n_head", "2"])
-    agent = load_agent(runs / "checkpoints" / "last.ckpt")
+    agent = load_agent(next(runs.glob("*/checkpoints/last.ckpt")))
     val = RecordedPreferenceDataModule(str(data)).dataset["val"]
     context = StepPreferenceContext(torch.from_numpy(np.array(val["states"])),
                                     torch.from_numpy(np.array(val["actions"], dtype=np.int64)),

@@ -17,7 +17,11 @@ This module owns what every dataset shares:
 
 * ``prepare_data()`` generates the dataset when it is missing and writes it atomically with its
   manifest (``data/store.py``); an existing one made with another config is an error naming the keys
-  that differ. The directory is ``<root_dir>/<family>-<kind>-<hash of the config>`` unless ``data_dir``.
+  that differ, one lacking a field the setting serves an error naming the field. The directory is
+  ``<root_dir>/<family>-<kind>-<hash of the config>`` unless ``data_dir``. Generation holds the
+  dataset's lock (``<parent>/.<name>.lock``), so a second process preparing the same dataset waits and
+  then loads the finished one. ``overwrite`` replaces only one of our datasets (a ``manifest.json`` of
+  this schema version); anything else at the path is refused before generating, never deleted.
 * Batches are drawn a whole batch at a time from the memory-mapped arrays (``data/batches.py``): with
   ``pairs`` a sample also carries another row of the same task, with ``query_labels`` the query states
   and optimal actions of DPT/DP²T.
@@ -28,6 +32,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -36,11 +41,20 @@ import torch
 from torch.utils.data import BatchSampler, DataLoader, RandomSampler, SequentialSampler
 
 from icprl_lightning.contexts import ActionSpec
-from icprl_lightning.data.batches import ContextBatches
-from icprl_lightning.data.settings.base import Setting
-from icprl_lightning.data.store import StoredDataset, load_dataset, write_dataset
+from icprl_lightning.data.batches import LABEL_FIELDS, ContextBatches
+from icprl_lightning.data.settings.bandit_duels import BanditDuels
+from icprl_lightning.data.settings.base import MDPSetting, Setting
+from icprl_lightning.data.store import (
+    StoredDataset,
+    check_replaceable_dataset,
+    dataset_lock,
+    load_dataset,
+    write_dataset,
+)
 from icprl_lightning.data.suites import BanditSuite, EvalSuite
-from icprl_lightning.families.base import Family
+from icprl_lightning.families.base import Family, TaskFamily
+from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
+from icprl_lightning.validation import HyperparameterError, check_int
 
 
 class PreferenceDataModule(L.LightningDataModule):
@@ -61,6 +75,31 @@ class PreferenceDataModule(L.LightningDataModule):
     def __init__(self, family: Family, setting: Setting, data_dir: str | None = None,
                  root_dir: str = "data", batch_size: int = 32, pairs: bool = False, query_labels: bool = False,
                  overwrite: bool = False, verify_checksums: bool = True, progress: bool = True) -> None:
+        if not isinstance(family, Family):
+            raise HyperparameterError(f"PreferenceDataModule: family must be a Family (families/base.py), got "
+                                      f"{type(family).__name__}")
+        if not isinstance(setting, Setting):
+            raise HyperparameterError(f"PreferenceDataModule: setting must be a Setting (data/settings/), got "
+                                      f"{type(setting).__name__}")
+        family_needed = LinearDuelingBanditFamily if isinstance(setting, BanditDuels) else (
+            TaskFamily if isinstance(setting, MDPSetting) else Family)
+        if not isinstance(family, family_needed):
+            raise HyperparameterError(
+                f"PreferenceDataModule: family must be a {family_needed.__name__} for setting "
+                f"{type(setting).__name__}, got {type(family).__name__} (dueling bandits take the BanditDuels "
+                "setting; MDP families take StepPreferences, TrajectoryPairs, RewardContexts or RewardTrajectories)")
+        check_int("PreferenceDataModule", "batch_size", batch_size, 1)
+        if pairs:
+            keys = (("contexts_per_problem", "val_contexts_per_problem") if isinstance(setting, BanditDuels)
+                    else ("trajectories_per_task", "val_trajectories_per_task"))
+            for key, n in zip(keys, setting.per_task, strict=True):
+                if n < 2:
+                    raise HyperparameterError(
+                        f"PreferenceDataModule: pairs=True serves another context of the same task, so "
+                        f"{type(setting).__name__}'s {key} must be >= 2, got {n}")
+        if query_labels and isinstance(setting, BanditDuels):
+            raise HyperparameterError("PreferenceDataModule: query_labels must be false with BanditDuels (a bandit "
+                                      "has no query states nor optimal-action labels), got True")
         super().__init__()
         self.family = family
         self.setting = setting
@@ -73,6 +112,12 @@ class PreferenceDataModule(L.LightningDataModule):
         self.verify_checksums = verify_checksums
         self.progress = progress
         self.dataset: StoredDataset | None = None
+        # what the callbacks may read (validation.data_offers): rollouts (MDP settings), weak regret
+        # (bandits), held-out pairs (T-PRL pairs)
+        offers = {"evaluation_suites": isinstance(setting, MDPSetting),
+                  "bandit_suites": hasattr(setting, "bandit_suites"),
+                  "heldout_pairs": hasattr(setting, "heldout_pairs") and setting.kind == "trajectory_preference"}
+        self.offers = frozenset(k for k, v in offers.items() if v)
 
     # ---- what the CLI links into the model and the callbacks read ----------------------------------
     @property
@@ -119,21 +164,52 @@ class PreferenceDataModule(L.LightningDataModule):
                 f"`icprl generate --config <your config>`; fit also generates a missing dataset")
 
     def prepare_data(self) -> None:
-        if self.path.exists() and not self.overwrite:
-            load_dataset(self.path, self.generator_config(), verify=False, regenerate_hint=self.regenerate_hint)
+        path = self.path
+        if not self.overwrite and path.is_dir() and not os.access(path.parent, os.W_OK):
+            self._check_fields(self._read(verify=False))  # a read-only dataset: nothing to write, no lock to take
             return
-        splits, info = self.setting.generate(self.family, self.progress)
-        write_dataset(self.path, splits, self.generator_config(), info=info, overwrite=True)
+        with dataset_lock(path):  # a second process waits here, then finds the dataset made by the first
+            if not self.overwrite and (path.exists() or path.is_symlink()):
+                self._check_fields(self._read(verify=False))
+                return
+            check_replaceable_dataset(path)  # refuse before generating, not after
+            splits, info = self.setting.generate(self.family, self.progress)
+            write_dataset(path, splits, self.generator_config(), info=info, overwrite=True)
         self.overwrite = False  # generated now; later calls (e.g. setup in another stage) reuse it
 
     def load(self) -> StoredDataset:
         if self.dataset is None:
-            self.dataset = load_dataset(self.path, self.generator_config(), verify=self.verify_checksums,
-                                        regenerate_hint=self.regenerate_hint)
+            self.dataset = self._check_fields(self._read(verify=self.verify_checksums))
         return self.dataset
 
+    def required_fields(self) -> dict[str, list[str]]:
+        """The fields the batches read from each split: the setting's, ``pair_fields``, query labels."""
+        fields = list(self.setting.batch_fields())
+        fields += [f for f in self.setting.pair_fields if self.pairs and f not in fields]
+        fields += [f for f in LABEL_FIELDS if self.query_labels and f not in fields]
+        return {"train": fields, "val": fields}
+
+    def _read(self, verify: bool) -> StoredDataset:
+        return load_dataset(self.path, self.generator_config(), verify=verify, regenerate_hint=self.regenerate_hint)
+
+    def _check_fields(self, dataset: StoredDataset) -> StoredDataset:
+        dataset.require(self.required_fields(), self.regenerate_hint)
+        return dataset
+
     def setup(self, stage: str | None = None) -> None:
-        self.load()
+        """Load the dataset and check its context fields' values once (``contexts.check_stored_splits``:
+        finite floats, labels in {0, 1}, action indices in range, T ≥ 1), a ``DatasetError`` naming the
+        split, field and path — before any batch is served."""
+        from icprl_lightning.contexts import check_stored_splits
+        from icprl_lightning.data.store import DatasetError
+
+        data = self.load()
+        if getattr(self, "_values_checked", None) is not data:  # once per loaded dataset, not per stage
+            try:
+                check_stored_splits(data.splits, self.action_spec, where=str(data.path))
+            except ValueError as e:
+                raise DatasetError(f"{e}. To fix: {self.regenerate_hint}.") from None
+            self._values_checked = data
 
     # ---- batches -------------------------------------------------------------------------------------
     def _loader(self, split: str, shuffle: bool) -> DataLoader:

@@ -17,7 +17,6 @@ field and split, ``manifest.json`` with checksums, staged and renamed). ``Record
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -27,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from icprl_lightning.contexts import ActionSpec
-from icprl_lightning.data.store import MANIFEST, SCHEMA_VERSION, write_dataset
+from icprl_lightning.data.store import check_replaceable_dataset, write_dataset
 
 FORMAT = "icprl_recorded"
 FORMAT_VERSION = 1
@@ -252,19 +251,11 @@ class ImportSummary:
 
 def _guard_out_dir(out: Path, source: Path | None, overwrite: bool) -> None:
     """Refuse to replace anything that is not one of our datasets (nor a directory holding the source)."""
-    if not out.exists():
+    if not (out.exists() or out.is_symlink()):
         return
     if not overwrite:
         raise FileExistsError(f"{out} exists; pass --overwrite (overwrite=True) to replace that dataset")
-    if not out.is_dir():
-        raise FileExistsError(f"{out} exists and is not a dataset directory; refusing to replace it")
-    try:
-        manifest = json.loads((out / MANIFEST).read_text())
-    except (OSError, json.JSONDecodeError):
-        manifest = None
-    if not isinstance(manifest, dict) or manifest.get("schema_version") != SCHEMA_VERSION:
-        raise FileExistsError(f"{out} exists and is not an icprl dataset (no {MANIFEST} of schema version "
-                              f"{SCHEMA_VERSION}); refusing to replace it, even with --overwrite")
+    check_replaceable_dataset(out)  # the store's one check: a directory with our manifest.json, else refused
     if source is not None and source.resolve().is_relative_to(out.resolve()):
         raise FileExistsError(f"the source {source} is inside {out}; replacing the dataset would delete it")
 

@@ -8,7 +8,13 @@ Layout::
 A dataset is written into a hidden temporary sibling directory and renamed into place only after every
 array and the manifest are on disk, so an interrupted generation leaves nothing that looks like a
 dataset. Loading checks the schema version, the generator config, and each file's size and SHA-256, and
-every failure says what is wrong and how to regenerate.
+every failure says what is wrong and how to regenerate; a field or split the manifest does not list is a
+``MissingFieldError`` naming it and the path.
+
+Only a dataset of this project is ever replaced (``overwrite=True``): a directory whose ``manifest.json``
+is readable and has this ``SCHEMA_VERSION`` (``check_replaceable_dataset``, the one check the store, the
+DataModules and the importer use). A directory of anything else, a plain file or a symbolic link at the
+path is refused with ``NotReplaceableError``. Writers of one path take turns (``dataset_lock``).
 """
 
 from __future__ import annotations
@@ -22,10 +28,15 @@ from typing import Any
 
 import numpy as np
 
-from icprl_lightning.io import sha256, staged_directory
+from icprl_lightning.io import NotReplaceableError, check_replaceable, path_lock, sha256, staged_directory
 
 SCHEMA_VERSION = 1
 MANIFEST = "manifest.json"
+WHAT = "icprl dataset"
+
+__all__ = ["MANIFEST", "SCHEMA_VERSION", "DatasetError", "DatasetNotFoundError", "MissingFieldError",
+           "NotReplaceableError", "Split", "StoredDataset", "check_replaceable_dataset", "dataset_lock",
+           "load_dataset", "write_dataset"]
 
 
 class DatasetError(RuntimeError):
@@ -36,6 +47,36 @@ class DatasetNotFoundError(DatasetError):
     pass
 
 
+class MissingFieldError(DatasetError, KeyError):
+    """A split or field the manifest does not list (a ``KeyError`` too, for ``except KeyError`` callers)."""
+
+    def __str__(self) -> str:  # not KeyError's quoted repr
+        return str(self.args[0]) if self.args else ""
+
+
+def check_replaceable_dataset(path: str | Path) -> None:
+    """Raise ``NotReplaceableError`` unless ``path`` is absent or one of our datasets (may be replaced)."""
+    check_replaceable(path, MANIFEST, SCHEMA_VERSION, WHAT)
+
+
+def dataset_lock(path: str | Path):
+    """The writers' lock of the dataset at ``path`` (``<parent>/.<name>.lock``); see ``io.path_lock``."""
+    return path_lock(path)
+
+
+class Split(dict):
+    """One split's ``{field: array}``; a field it lacks is a ``MissingFieldError`` naming it and the path."""
+
+    def __init__(self, path: Path, split: str, fields: Mapping[str, np.ndarray] = ()) -> None:
+        super().__init__(fields)
+        self.path = path
+        self.split = split
+
+    def __missing__(self, field: str) -> np.ndarray:
+        raise MissingFieldError(f"Dataset {self.path} has no field {field!r} in split {self.split!r} (its manifest "
+                                f"lists {sorted(self)}): it was made by another setting or is incomplete")
+
+
 @dataclass
 class StoredDataset:
     path: Path
@@ -44,17 +85,32 @@ class StoredDataset:
 
     def __getitem__(self, split: str) -> dict[str, np.ndarray]:
         if split not in self.splits:
-            raise KeyError(f"dataset {self.path} has no split {split!r}; it has {sorted(self.splits)}")
+            raise MissingFieldError(f"dataset {self.path} has no split {split!r}; it has {sorted(self.splits)}")
         return self.splits[split]
+
+    def require(self, fields: Mapping[str, Any], hint: str = "delete the directory and generate it again") -> None:
+        """Raise ``MissingFieldError`` naming every ``{split: [field, ...]}`` the manifest does not list."""
+        missing = [f"{split}/{field}.npy" for split, names in fields.items() for field in names
+                   if field not in self.splits.get(split, {})]
+        if missing:
+            raise MissingFieldError(f"Dataset {self.path} lacks {', '.join(missing)} (not in its {MANIFEST}), "
+                                    f"which this data setting needs: it was made by another setting or is "
+                                    f"incomplete. To fix: {hint}.")
 
 
 def write_dataset(path: str | Path, splits: Mapping[str, Mapping[str, np.ndarray]], config: Mapping[str, Any],
                   info: Mapping[str, Any] | None = None, overwrite: bool = False) -> Path:
-    """Write ``splits`` atomically to ``path``; ``config`` is what generated it (compared on load)."""
+    """Write ``splits`` atomically to ``path``; ``config`` is what generated it (compared on load).
+
+    An existing ``path`` is a ``FileExistsError`` unless ``overwrite``, and a ``NotReplaceableError``
+    (never deleted) unless it is one of our datasets.
+    """
     path = Path(path)
-    if path.exists() and not overwrite:
+    if (path.exists() or path.is_symlink()) and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-    with staged_directory(path) as tmp:
+    check_replaceable_dataset(path)
+    with staged_directory(path, marker=MANIFEST, schema_version=SCHEMA_VERSION, what=WHAT,
+                          overwrite=overwrite) as tmp:
         files: dict[str, dict[str, Any]] = {}
         sizes: dict[str, dict[str, list[int]]] = {}
         for split, fields in splits.items():
@@ -98,8 +154,11 @@ def load_dataset(path: str | Path, expected_config: Mapping[str, Any] | None = N
         manifest = json.loads((path / MANIFEST).read_text())
     except FileNotFoundError:
         raise DatasetError(f"Dataset {path} has no {MANIFEST}: it is incomplete or not a dataset. {fix}") from None
-    except json.JSONDecodeError as e:
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt ({e}). {fix}") from None
+    if not isinstance(manifest, dict):
+        raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt (a JSON {type(manifest).__name__}, not an "
+                           f"object). {fix}")
     version = manifest.get("schema_version")
     if version != SCHEMA_VERSION:
         raise DatasetError(f"Dataset {path} has schema version {version}, this code reads {SCHEMA_VERSION}. {fix}")
@@ -109,7 +168,14 @@ def load_dataset(path: str | Path, expected_config: Mapping[str, Any] | None = N
             raise DatasetError(f"Dataset {path} was generated with a different config:\n  "
                                + "\n  ".join(diff) + f"\n{fix}")
     splits: dict[str, dict[str, np.ndarray]] = {}
-    for rel, meta in manifest.get("files", {}).items():
+    files = manifest.get("files", {})
+    if not isinstance(files, dict):
+        raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt (its \"files\" is not an object). {fix}")
+    for rel, meta in files.items():
+        if (rel.count("/") != 1 or not rel.endswith(".npy") or ".." in rel.split("/")
+                or not isinstance(meta, dict) or not {"bytes", "sha256"} <= set(meta)):
+            raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt (bad file entry {rel!r}: {meta!r}; "
+                               f"expected \"<split>/<field>.npy\" with bytes and sha256). {fix}")
         file = path / rel
         if not file.is_file():
             raise DatasetError(f"Dataset {path}: file {rel} is missing. {fix}")
@@ -124,5 +190,5 @@ def load_dataset(path: str | Path, expected_config: Mapping[str, Any] | None = N
         except ValueError as e:
             raise DatasetError(f"Dataset {path}: {rel} is not a readable .npy file ({e}). {fix}") from None
         split, name = rel.split("/", 1)
-        splits.setdefault(split, {})[name.removesuffix(".npy")] = array
+        splits.setdefault(split, Split(path, split))[name.removesuffix(".npy")] = array
     return StoredDataset(path=path, manifest=manifest, splits=splits)

@@ -14,20 +14,38 @@ from torch import Tensor
 
 from icprl_lightning.contexts import ActionSpec, context_from_batch
 from icprl_lightning.models.policy import InContextPolicy
+from icprl_lightning.validation import check_kind, check_sizes, check_transformer
 
 
 class InContextModule(L.LightningModule):
-    """Base LightningModule of DPT, DP²T and ICPO (see the module docstring)."""
+    """Base LightningModule of DPT, DP²T and ICPO (see the module docstring).
+
+    ``consumes``: the context kinds of the data it trains on (by default its ``context_kind``); the CLI
+    checks it against the DataModule's ``context_kind`` before any data is generated. ``needs_pairs`` /
+    ``needs_query_labels``: the DataModule flags its loss reads.
+    """
+
+    needs_pairs = False
+    needs_query_labels = False
 
     def __init__(self, context_kind: str, state_dim: int, action_dim: int, discrete: bool, max_context: int,
                  n_layer: int = 3, n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
                  weight_decay: float = 0.0) -> None:
+        owner = type(self).__name__
+        check_kind(owner, "context_kind", context_kind)
+        check_sizes(owner, state_dim, action_dim)
+        check_transformer(owner, n_layer, n_embd, n_head, dropout, lr, weight_decay, max_context)
         super().__init__()
         self.save_hyperparameters()
         self.context_kind = context_kind
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.policy = InContextPolicy(context_kind, state_dim, self.action_spec, n_layer, n_embd, n_head,
                                       max_context, dropout)
+
+    @property
+    def consumes(self) -> tuple[str, ...]:
+        """The context kinds of the training data (the policy's own context kind)."""
+        return (self.context_kind,)
 
     def forward(self, context, query_states: Tensor, visible: Tensor) -> Tensor:
         return self.policy(context, query_states, visible)
@@ -58,7 +76,10 @@ class InContextModule(L.LightningModule):
         return torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
-        checkpoint["icprl_class_path"] = f"{type(self).__module__}.{type(self).__qualname__}"
+        """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""
+        from icprl_lightning.checkpoints import stamp
+
+        stamp(self, checkpoint)
 
     def make_agent(self, greedy: bool = True, use_cache: bool = True, seed: int | None = None):
         from icprl_lightning.deploy import Agent

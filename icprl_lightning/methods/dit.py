@@ -31,6 +31,7 @@ from icprl_lightning.contexts import RewardTrajectoryContext
 from icprl_lightning.methods.base import InContextModule
 from icprl_lightning.methods.losses import advantage_weighted_loss, dit_value_loss
 from icprl_lightning.models.estimator import InContextEstimator
+from icprl_lightning.validation import check_int, check_interval, check_positive
 
 
 def discounted_returns(rewards: Tensor, gamma: float) -> Tensor:
@@ -56,6 +57,11 @@ class DITModule(InContextModule):
                  eta: float = 1.0, max_weight: float = 20.0, value_epochs: int = 2, n_layer: int = 3,
                  n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
                  weight_decay: float = 0.0) -> None:
+        owner = type(self).__name__
+        check_interval(owner, "gamma", gamma, 0.0, 1.0)
+        check_positive(owner, "eta", eta)
+        check_positive(owner, "max_weight", max_weight)
+        check_int(owner, "value_epochs", value_epochs, 0)
         super().__init__("reward_trajectory", state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
                          dropout, lr, weight_decay)
         estimator = dict(context_kind="reward_trajectory", state_dim=state_dim, action_spec=self.action_spec,

@@ -12,9 +12,14 @@ from torch import Tensor
 
 from icprl_lightning.methods.base import InContextModule
 from icprl_lightning.methods.losses import supervised_action_loss
+from icprl_lightning.validation import HyperparameterError
+
+PREFERENCE_KINDS = ("step_preference", "trajectory_preference")
 
 
 class SupervisedPretrainingModule(InContextModule):
+    needs_query_labels = True  # trains on the optimal actions of query states
+
     def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
         if "optimal_actions" not in batch:
             raise KeyError(f"{type(self).__name__} trains on optimal-action labels: set "
@@ -45,7 +50,9 @@ class DP2TModule(SupervisedPretrainingModule):
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
                  context_kind: str = "step_preference", n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
                  dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0) -> None:
-        if context_kind == "reward":
-            raise ValueError("DP2T conditions on preferences; a reward context makes it DPT (DPTModule)")
+        if context_kind not in PREFERENCE_KINDS:
+            raise HyperparameterError(f"DP2TModule: context_kind must be one of {list(PREFERENCE_KINDS)}, got "
+                                      f"{context_kind!r} (DP2T conditions on preferences; a reward context makes "
+                                      "it DPT, DPTModule)")
         super().__init__(context_kind, state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
                          dropout, lr, weight_decay)

@@ -23,6 +23,7 @@ from torch import Tensor
 from icprl_lightning.methods.base import InContextModule
 from icprl_lightning.methods.losses import icpo_continuous_loss, icpo_loss
 from icprl_lightning.models.tokenizers import preferred_first
+from icprl_lightning.validation import HyperparameterError, check_choice, check_nonnegative, check_positive
 
 PAIR_SOURCES = ("other_trajectory", "context")
 
@@ -32,10 +33,22 @@ class ICPOModule(InContextModule):
                  lam: float = 0.5, pair_source: str = "other_trajectory", lambda_on_preferred: bool = False,
                  squared_distance: bool = False, n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
                  dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0) -> None:
-        if pair_source not in PAIR_SOURCES:
-            raise ValueError(f"pair_source must be one of {PAIR_SOURCES}, got {pair_source!r}")
+        check_choice("ICPOModule", "pair_source", pair_source, PAIR_SOURCES)
+        check_positive("ICPOModule", "beta", beta)
+        check_nonnegative("ICPOModule", "lam", lam)  # λ = 0 drops the rejected term; λ > 1 is Meta-World's
+        if discrete:
+            for key, value in (("lambda_on_preferred", lambda_on_preferred), ("squared_distance", squared_distance)):
+                if value:
+                    raise HyperparameterError(f"ICPOModule: {key} applies to continuous actions only (the "
+                                              f"Gaussian-mean loss), but this data's actions are discrete; got "
+                                              f"{key}={value!r}, must be false")
         super().__init__("step_preference", state_dim, action_dim, discrete, max_context, n_layer, n_embd,
                          n_head, dropout, lr, weight_decay)
+
+    @property
+    def needs_pairs(self) -> bool:  # type: ignore[override]
+        """pair_source other_trajectory scores another row of the same task: the data's ``pairs``."""
+        return self.hparams.pair_source == "other_trajectory"
 
     def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
         hp = self.hparams

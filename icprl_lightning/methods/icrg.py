@@ -21,6 +21,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from icprl_lightning.checkpoints import read_checkpoint
 from icprl_lightning.contexts import RewardTrajectoryContext, TrajectoryPreferenceContext, context_from_batch
 from icprl_lightning.deploy import Agent
 from icprl_lightning.methods.dit import DITModule
@@ -34,13 +35,16 @@ def read_reward_gen(checkpoint: str) -> tuple[dict[str, Any], dict[str, Tensor]]
     """A RewardGen checkpoint's hyperparameters and R_ψ's weights, read from the file.
 
     Read directly rather than through ``RewardGenModule.load_from_checkpoint``: inside LightningCLI's
-    instantiation, a module built there would record the CLI's (ICRG's) hyperparameters as its own.
+    instantiation, a module built there would record the CLI's (ICRG's) hyperparameters as its own. Read as
+    untrusted, like every checkpoint (``checkpoints.py``: ``weights_only=True``, class and checksum checked).
     """
-    ckpt = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    expected = f"{RewardGenModule.__module__}.{RewardGenModule.__qualname__}"
-    if not isinstance(ckpt, dict) or ckpt.get("icprl_class_path") != expected:
-        raise ValueError(f"{checkpoint} is not a RewardGen checkpoint (train one with "
-                         "configs/reward_gen_darkroom.yaml or configs/reward_gen_metaworld.yaml)")
+    try:
+        ckpt = read_checkpoint(checkpoint, expected=RewardGenModule)
+    except ValueError as e:
+        raise ValueError(f"reward_gen_checkpoint: {e} (train one with configs/reward_gen_darkroom.yaml or "
+                         "configs/reward_gen_metaworld.yaml)") from None
+    except FileNotFoundError as e:
+        raise FileNotFoundError(f"reward_gen_checkpoint: {e}") from None
     prefix = "reward."
     weights = {k[len(prefix):]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
     return dict(ckpt["hyper_parameters"]), weights
@@ -54,7 +58,13 @@ class ICRGModule(DITModule):
         reward_gen_hparams: R_ψ's architecture; filled in from the checkpoint and saved with this module
             (set it only to build the module without the file).
         Other arguments as ``DITModule``.
+
+    Its policy conditions on reward trajectories, but it trains on T-PRL pairs (which R_ψ labels), each
+    with another pair of its task (``data.pairs: true``).
     """
+
+    consumes = ("trajectory_preference",)
+    needs_pairs = True
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
                  reward_gen_checkpoint: str | None = None, reward_gen_hparams: dict[str, Any] | None = None,
@@ -120,7 +130,7 @@ class ICRGAgent:
             raise ValueError("ICRG labels the context's unlabeled behavior trajectory: set behavior_states "
                              "[B, T, S] and behavior_actions")
         policy = self.policy_agent.policy
-        context.validate(policy.state_dim, policy.action_spec)
+        context = context.validate(policy.state_dim, policy.action_spec)  # normalized (e.g. float64 -> float32)
         context = context.to(self.policy_agent.device)
         rewards = self.reward_model.label(context, context.behavior_states, context.behavior_actions)
         self.labeled_context = RewardTrajectoryContext(context.behavior_states, context.behavior_actions, rewards)

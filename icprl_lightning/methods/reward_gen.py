@@ -30,21 +30,31 @@ from torch import Tensor
 from icprl_lightning.contexts import ActionSpec, context_from_batch
 from icprl_lightning.methods.losses import trajectory_preference_loss
 from icprl_lightning.models.estimator import InContextRewardModel
+from icprl_lightning.validation import check_choice, check_sizes, check_transformer
 
 PAIR_SOURCES = ("other_pair", "context")
 
 
 class RewardGenModule(L.LightningModule):
+    consumes = ("trajectory_preference",)  # the data kind it trains on (checked by the CLI)
+    needs_query_labels = False
+
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
                  pair_source: str = "other_pair", n_layer: int = 4, n_embd: int = 32, n_head: int = 4,
                  dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0) -> None:
+        check_choice("RewardGenModule", "pair_source", pair_source, PAIR_SOURCES)
+        check_sizes("RewardGenModule", state_dim, action_dim)
+        check_transformer("RewardGenModule", n_layer, n_embd, n_head, dropout, lr, weight_decay, max_context)
         super().__init__()
-        if pair_source not in PAIR_SOURCES:
-            raise ValueError(f"pair_source must be one of {PAIR_SOURCES}, got {pair_source!r}")
         self.save_hyperparameters()
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.reward = InContextRewardModel(state_dim, self.action_spec, n_layer, n_embd, n_head, max_context, dropout)
         self._moments = torch.zeros(3, dtype=torch.float64)  # count, sum, sum of squares of val outputs
+
+    @property
+    def needs_pairs(self) -> bool:
+        """pair_source other_pair conditions on another pair of the same task: the data's ``pairs``."""
+        return self.hparams.pair_source == "other_pair"
 
     def forward(self, context, states: Tensor, actions: Tensor) -> Tensor:
         """Raw rewards R_ψ(s, a | context) for states (B, Q, S), actions (B, Q) -> (B, Q)."""
@@ -104,7 +114,10 @@ class RewardGenModule(L.LightningModule):
         return torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
-        checkpoint["icprl_class_path"] = f"{type(self).__module__}.{type(self).__qualname__}"
+        """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""
+        from icprl_lightning.checkpoints import stamp
+
+        stamp(self, checkpoint)
 
     def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None):
         raise TypeError("a RewardGen checkpoint holds a reward model, not a policy: train ICRG on it (configs/"

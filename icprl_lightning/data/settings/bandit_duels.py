@@ -38,6 +38,7 @@ from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.data.suites import BanditSuite, EvalSuite
 from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
 from icprl_lightning.preferences import label_agreement
+from icprl_lightning.validation import HyperparameterError, check_int
 
 EVAL_SOURCES = ("uniform", "dirichlet", "dts")
 _CHUNK = 10_000  # problems generated per step, bounding memory at paper scale (100k contexts)
@@ -65,9 +66,15 @@ class BanditDuels(Setting):
                  eval_sources: tuple[str, ...] = EVAL_SOURCES) -> None:
         unknown = set(eval_sources) - set(EVAL_SOURCES)
         if unknown:
-            raise ValueError(f"unknown eval_sources {sorted(unknown)}; expected a subset of {EVAL_SOURCES}")
-        if min(n_train_problems, n_val_problems, n_eval_problems) < 1:
-            raise ValueError("n_train_problems, n_val_problems and n_eval_problems must be >= 1")
+            raise HyperparameterError(f"BanditDuels: eval_sources must be a subset of {list(EVAL_SOURCES)}, "
+                                      f"got unknown {sorted(unknown)}")
+        if not eval_sources:
+            raise HyperparameterError(f"BanditDuels: eval_sources must name at least one of {list(EVAL_SOURCES)}, "
+                                      "got []")
+        for key, value in (("n_train_problems", n_train_problems), ("contexts_per_problem", contexts_per_problem),
+                           ("n_val_problems", n_val_problems), ("val_contexts_per_problem", val_contexts_per_problem),
+                           ("n_eval_problems", n_eval_problems)):
+            check_int("BanditDuels", key, value, 1)
         self.n_problems = {"train": n_train_problems, "val": n_val_problems, "test": n_eval_problems}
         self.per_task = (contexts_per_problem, val_contexts_per_problem)
         self.eval_sources = tuple(eval_sources)

@@ -31,6 +31,7 @@ from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.data.suites import EvalSuite
 from icprl_lightning.families.base import QUALITIES, Family, TaskFamily
+from icprl_lightning.validation import check_choice, check_increasing, check_int
 
 PRETRAINING = "pretraining"  # name of a setting's extra calibrated policy (T-PRL's 50% policy)
 
@@ -121,16 +122,21 @@ class MDPSetting(Setting):
     def __init__(self, trajectories_per_task: int = 100, val_trajectories_per_task: int = 4,
                  eval_contexts_per_task: int = 5, quality_targets: tuple[float, float, float] = (0.2, 0.4, 0.8),
                  train_policy: str = "cycle", calibration_episodes: int = 25, reference_episodes: int = 25) -> None:
+        owner = type(self).__name__
+        for key, value in (("trajectories_per_task", trajectories_per_task),
+                           ("val_trajectories_per_task", val_trajectories_per_task),
+                           ("eval_contexts_per_task", eval_contexts_per_task),
+                           ("calibration_episodes", calibration_episodes), ("reference_episodes", reference_episodes)):
+            check_int(owner, key, value, 1)
+        targets = check_increasing(owner, "quality_targets", quality_targets, 0.0, 1.0, length=len(QUALITIES))
         self.trajectories_per_task = trajectories_per_task
         self.val_trajectories_per_task = val_trajectories_per_task
         self.eval_contexts_per_task = eval_contexts_per_task
-        self.quality_targets = dict(zip(QUALITIES, quality_targets, strict=True))
+        self.quality_targets = dict(zip(QUALITIES, targets, strict=True))
         self.train_policy = train_policy
         self.calibration_episodes = calibration_episodes
         self.reference_episodes = reference_episodes
-        known = ("cycle", *self.policy_names())
-        if train_policy not in known:
-            raise ValueError(f"train_policy must be one of {list(known)}, got {train_policy!r}")
+        check_choice(owner, "train_policy", train_policy, ("cycle", *self.policy_names()))
 
     # ---- what a subclass defines -------------------------------------------------------------------
     @abstractmethod

@@ -30,6 +30,7 @@ import numpy as np
 from icprl_lightning.data.settings.base import MDPSetting, chunks, steps
 from icprl_lightning.families.base import TaskFamily
 from icprl_lightning.preferences import label_agreement, sample_preferences
+from icprl_lightning.validation import check_choice, check_positive
 
 FOLLOW = ("preferred", "rejected", "first", "second")
 
@@ -42,13 +43,10 @@ class StepPreferences(MDPSetting):
     def __init__(self, first_policy: str = "uniform", bt_temperature: float = 1.0,
                  next_state_follows: str = "preferred", **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        if first_policy != "uniform" and first_policy not in self.policy_names():
-            raise ValueError(f"first_policy must be 'uniform' or one of {list(self.policy_names())}, "
-                             f"got {first_policy!r}")
-        if next_state_follows not in FOLLOW:
-            raise ValueError(f"next_state_follows must be one of {list(FOLLOW)}, got {next_state_follows!r}")
-        if not bt_temperature > 0:
-            raise ValueError(f"bt_temperature must be > 0, got {bt_temperature}")
+        owner = type(self).__name__
+        check_choice(owner, "first_policy", first_policy, ("uniform", *self.policy_names()))
+        check_choice(owner, "next_state_follows", next_state_follows, FOLLOW)
+        check_positive(owner, "bt_temperature", bt_temperature)
         self.first_policy = first_policy
         self.bt_temperature = bt_temperature
         self.next_state_follows = next_state_follows

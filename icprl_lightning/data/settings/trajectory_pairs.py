@@ -33,6 +33,7 @@ from icprl_lightning.data.settings.base import PRETRAINING, MDPSetting, rollout_
 from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.families.base import QUALITIES, TaskFamily
 from icprl_lightning.preferences import label_agreement, sample_preferences
+from icprl_lightning.validation import check_interval, check_positive
 
 PAIR_FIELDS = ("states_a", "actions_a", "states_b", "actions_b", "preferred")
 LABELED_FIELDS = ("states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b")
@@ -69,10 +70,9 @@ class TrajectoryPairs(MDPSetting):
 
     def __init__(self, bt_temperature: float = 1.0, pretraining_target: float = 0.5,
                  trajectories_per_task: int = 60, **kwargs: Any) -> None:
-        if not bt_temperature > 0:
-            raise ValueError(f"bt_temperature must be > 0, got {bt_temperature}")
-        if not 0.0 < pretraining_target < 1.0:
-            raise ValueError(f"pretraining_target must lie strictly between 0 and 1, got {pretraining_target}")
+        owner = type(self).__name__
+        check_positive(owner, "bt_temperature", bt_temperature)
+        check_interval(owner, "pretraining_target", pretraining_target, 0.0, 1.0, closed="neither")
         self.bt_temperature = bt_temperature
         self.pretraining_target = pretraining_target
         super().__init__(trajectories_per_task=trajectories_per_task, **kwargs)

@@ -21,6 +21,7 @@ from icprl_lightning.families.base import TaskFamily
 from icprl_lightning.families.darkroom.env import N_ACTIONS, DarkRoomState, DarkRoomVectorEnv, step_reward, transition
 from icprl_lightning.families.darkroom.oracle import DarkRoomOracle, calibrate_mixing, rollout_returns
 from icprl_lightning.metrics import mean_sem, per_task_mean
+from icprl_lightning.validation import HyperparameterError, check_int
 
 
 @dataclass(frozen=True)
@@ -42,9 +43,15 @@ class DarkRoomFamily(TaskFamily):
     max_parallel = None  # integer arrays: every trajectory of a split steps at once
 
     def __post_init__(self) -> None:
+        check_int("DarkRoomFamily", "size", self.size, 2)  # one cell has no task to infer
+        check_int("DarkRoomFamily", "horizon", self.horizon, 1)
+        check_int("DarkRoomFamily", "n_train_tasks", self.n_train_tasks, 1)
+        check_int("DarkRoomFamily", "n_test_tasks", self.n_test_tasks, 1)
         if self.n_train_tasks + self.n_test_tasks > self.size**2:
-            raise ValueError(f"{self.n_train_tasks} + {self.n_test_tasks} tasks need more than the "
-                             f"{self.size**2} goal cells of a {self.size}x{self.size} grid")
+            raise HyperparameterError(
+                f"DarkRoomFamily: n_train_tasks + n_test_tasks must be <= size**2 = {self.size**2}: "
+                f"{self.n_train_tasks} + {self.n_test_tasks} tasks need more than the {self.size**2} goal cells "
+                f"of a {self.size}x{self.size} grid")
 
     @property
     def action_spec(self) -> ActionSpec:

@@ -34,6 +34,7 @@ from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.families.base import Family
 from icprl_lightning.families.dueling_bandit.dts import run_dts
 from icprl_lightning.preferences import preference_probability, sample_preferences
+from icprl_lightning.validation import check_int, check_positive
 
 Context = dict[str, np.ndarray]
 
@@ -51,12 +52,12 @@ class LinearDuelingBanditFamily(Family):
 
     def __init__(self, n_arms: int = 20, dim: int = 10, horizon: int = 200, seed: int = 0,
                  bt_temperature: float = 1.0, dts_alpha: float = 0.51):
-        if n_arms < 2:
-            raise ValueError(f"n_arms must be >= 2 (a duel needs two arms), got {n_arms}")
-        if dim < 1 or horizon < 1:
-            raise ValueError(f"dim and horizon must be >= 1, got dim={dim}, horizon={horizon}")
-        if bt_temperature <= 0:
-            raise ValueError(f"bt_temperature must be > 0, got {bt_temperature}")
+        owner = "LinearDuelingBanditFamily"
+        check_int(owner, "n_arms", n_arms, 2)  # a duel needs two arms
+        check_int(owner, "dim", dim, 1)
+        check_int(owner, "horizon", horizon, 1)
+        check_positive(owner, "bt_temperature", bt_temperature)
+        check_positive(owner, "dts_alpha", dts_alpha)
         self.n_arms = n_arms
         self.dim = dim
         self.horizon = horizon

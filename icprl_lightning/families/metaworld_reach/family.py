@@ -16,9 +16,17 @@ import numpy as np
 
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.families.base import TaskFamily
-from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON, OBS_DIM, ReachVectorEnv, ml1_goals
+from icprl_lightning.families.metaworld_reach.env import (
+    ACTION_DIM,
+    HORIZON,
+    OBS_DIM,
+    ReachVectorEnv,
+    SawyerReachEnvV3,
+    ml1_goals,
+)
 from icprl_lightning.families.metaworld_reach.oracle import ReachOracle, calibrate_mixing, rollout_returns
 from icprl_lightning.metrics import mean_sem, per_task_mean
+from icprl_lightning.validation import HyperparameterError, check_int
 
 
 class ReachTaskFamily(TaskFamily):
@@ -33,9 +41,13 @@ class ReachTaskFamily(TaskFamily):
 
     def __init__(self, seed: int = 0, n_train: int = 45, n_test: int = 5, horizon: int = HORIZON,
                  num_workers: int = 2) -> None:
-        if n_train < 1 or n_test < 1 or n_train + n_test > 50:
-            raise ValueError(f"ML1 offers 50 goals: need n_train, n_test ≥ 1 and n_train + n_test ≤ 50, "
-                             f"got {n_train} + {n_test}")
+        check_int("ReachTaskFamily", "n_train", n_train, 1, 49)
+        check_int("ReachTaskFamily", "n_test", n_test, 1, 49)
+        if n_train + n_test > 50:
+            raise HyperparameterError(f"ReachTaskFamily: n_train + n_test must be <= 50 (ML1 offers 50 goals), "
+                                      f"got {n_train} + {n_test}")
+        check_int("ReachTaskFamily", "horizon", horizon, 1, SawyerReachEnvV3.max_path_length)
+        check_int("ReachTaskFamily", "num_workers", num_workers, 0)
         self.seed = seed
         self.n_train = n_train
         self.n_test = n_test

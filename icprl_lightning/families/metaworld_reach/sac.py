@@ -54,10 +54,11 @@ from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON
 from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
 from icprl_lightning.families.metaworld_reach.oracle import QUALITY_TARGETS, expert_actions
 from icprl_lightning.families.sb3_common import Act, EvalCheckpointCallback, EvalRecord, run_episodes
-from icprl_lightning.io import jsonable, staged_directory
+from icprl_lightning.io import check_replaceable, jsonable, staged_directory
 
-SUMMARY = "summary.json"
+SUMMARY = "summary.json"  # the marker of an oracle directory: only one with it (this schema) is replaced
 SCHEMA_VERSION = 1
+WHAT = "SAC oracle directory"
 
 
 def sample_policy_actions(model: SAC, obs: np.ndarray, generator: torch.Generator) -> np.ndarray:
@@ -103,15 +104,17 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
                      extra: Mapping[str, Any] | None = None) -> Path:
     """Train one goal-conditioned SAC on ``goals`` [G, 3], save checkpoints, pick the behavior policies.
 
-    ``checkpoint_every`` defaults to timesteps // 20. Returns ``out``, written atomically.
+    ``checkpoint_every`` defaults to timesteps // 20. Returns ``out``, written atomically. ``overwrite``
+    replaces only an oracle directory (its ``summary.json`` of this schema); anything else is refused.
     """
     out = Path(out)
-    if out.exists() and not overwrite:
+    if (out.exists() or out.is_symlink()) and not overwrite:
         raise FileExistsError(f"{out} exists; delete it or pass overwrite=True (--overwrite)")
+    check_replaceable(out, SUMMARY, SCHEMA_VERSION, WHAT)  # only an oracle directory is replaced, before training
     goals = np.asarray(goals, dtype=np.float64).reshape(-1, 3)
     every = checkpoint_every or max(1, timesteps // 20)
     model_seed, eval_seed, noise_seed, ref_seed = (int(s) for s in np.random.SeedSequence(seed).generate_state(4))
-    with staged_directory(out) as tmp:
+    with staged_directory(out, marker=SUMMARY, schema_version=SCHEMA_VERSION, what=WHAT, overwrite=overwrite) as tmp:
         eval_env = ReachGoalEnv(goals, horizon=horizon, goal_visible=True)
         options = [{"goal_index": i % len(goals)} for i in range(eval_episodes)]
         callback = EvalCheckpointCallback(eval_env, every, eval_episodes, eval_seed, stochastic_act(noise_seed),

@@ -1,0 +1,210 @@
+"""Argument checks shared by the modules, settings, families and DataModules, and the CLI's pairing checks.
+
+Every hyperparameter a user sets is range-checked where it is received (``__init__``), before any data is
+generated or any weight is built, with a ``HyperparameterError`` (a ``ValueError``) naming the owner, the
+key and the allowed range::
+
+    ICPOModule: beta must be > 0, got 0
+
+``check_pairing`` is what ``icprl fit|validate|test`` runs after instantiation and before any work: the
+model's context kinds (``consumes``) against the data's ``context_kind``, the data flags the model needs
+(``needs_pairs`` / ``needs_query_labels``) and the data each callback reads (``bandit_suites``,
+``evaluation_suites``, ``heldout_pairs``).
+
+Ground floor: imports nothing of the package but ``contexts`` (the known kinds) and numpy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from numbers import Integral, Real
+from typing import Any
+
+import numpy as np
+
+from icprl_lightning.contexts import CONTEXT_TYPES
+
+
+class HyperparameterError(ValueError):
+    """A constructor argument out of its range, or arguments that do not fit together; names the key."""
+
+
+def hyperparameter_cause(error: BaseException) -> HyperparameterError | None:
+    """The ``HyperparameterError`` behind ``error`` (jsonargparse wraps a constructor's error in its own)."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, HyperparameterError):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
+
+
+def _fail(owner: str, key: str, rule: str, value: Any) -> None:
+    raise HyperparameterError(f"{owner}: {key} must be {rule}, got {value!r}")
+
+
+def _number(owner: str, key: str, value: Any, integer: bool) -> float:
+    kind = Integral if integer else Real
+    if isinstance(value, bool) or not isinstance(value, (kind, np.integer if integer else np.number)):
+        _fail(owner, key, "an integer" if integer else "a number", value)
+    if not integer and not math.isfinite(float(value)):
+        _fail(owner, key, "finite", value)
+    return value
+
+
+def check_int(owner: str, key: str, value: Any, minimum: int | None = 1, maximum: int | None = None) -> int:
+    """``value`` is an integer in [minimum, maximum] (a bound of None is open)."""
+    _number(owner, key, value, integer=True)
+    if minimum is not None and value < minimum:
+        _fail(owner, key, f">= {minimum}" + (f" and <= {maximum}" if maximum is not None else ""), value)
+    if maximum is not None and value > maximum:
+        _fail(owner, key, f"<= {maximum}" + (f" and >= {minimum}" if minimum is not None else ""), value)
+    return int(value)
+
+
+def check_positive(owner: str, key: str, value: Any) -> float:
+    """``value`` is a finite number > 0."""
+    _number(owner, key, value, integer=False)
+    if not value > 0:
+        _fail(owner, key, "> 0", value)
+    return float(value)
+
+
+def check_nonnegative(owner: str, key: str, value: Any) -> float:
+    """``value`` is a finite number >= 0."""
+    _number(owner, key, value, integer=False)
+    if not value >= 0:
+        _fail(owner, key, ">= 0", value)
+    return float(value)
+
+
+def check_interval(owner: str, key: str, value: Any, low: float, high: float, closed: str = "both") -> float:
+    """``value`` lies in the interval from ``low`` to ``high``; ``closed``: "both", "left", "right", "neither"."""
+    _number(owner, key, value, integer=False)
+    left, right = closed in ("both", "left"), closed in ("both", "right")
+    ok = (value >= low if left else value > low) and (value <= high if right else value < high)
+    if not ok:
+        _fail(owner, key, f"in {'[' if left else '('}{low}, {high}{']' if right else ')'}", value)
+    return float(value)
+
+
+def check_choice(owner: str, key: str, value: Any, choices: Iterable[Any]) -> Any:
+    choices = tuple(choices)
+    if value not in choices:
+        _fail(owner, key, f"one of {list(choices)}", value)
+    return value
+
+
+def check_increasing(owner: str, key: str, values: Sequence[Any], low: float, high: float,
+                     length: int | None = None) -> tuple[float, ...]:
+    """``values`` strictly increasing, each strictly inside (low, high), ``length`` of them when given."""
+    try:
+        values = tuple(values)
+    except TypeError:
+        _fail(owner, key, "a sequence", values)
+    if length is not None and len(values) != length:
+        _fail(owner, key, f"{length} values", list(values))
+    for v in values:
+        _number(owner, key, v, integer=False)
+    if any(not low < v < high for v in values):
+        _fail(owner, key, f"values strictly inside ({low}, {high})", list(values))
+    if any(b <= a for a, b in zip(values, values[1:], strict=False)):
+        _fail(owner, key, "strictly increasing (low < medium < high)", list(values))
+    return tuple(float(v) for v in values)
+
+
+def check_transformer(owner: str, n_layer: Any, n_embd: Any, n_head: Any, dropout: Any, lr: Any,
+                      weight_decay: Any, max_context: Any) -> None:
+    """The shared architecture and optimizer arguments of every method."""
+    check_int(owner, "n_layer", n_layer, 1)
+    check_int(owner, "n_embd", n_embd, 1)
+    check_int(owner, "n_head", n_head, 1)
+    if n_embd % n_head:
+        raise HyperparameterError(f"{owner}: n_embd must be divisible by n_head, got n_embd={n_embd}, n_head={n_head}")
+    check_interval(owner, "dropout", dropout, 0.0, 1.0, closed="left")
+    check_positive(owner, "lr", lr)
+    check_nonnegative(owner, "weight_decay", weight_decay)
+    check_int(owner, "max_context", max_context, 1)
+
+
+def check_sizes(owner: str, state_dim: Any, action_dim: Any) -> None:
+    check_int(owner, "state_dim", state_dim, 0)
+    check_int(owner, "action_dim", action_dim, 1)
+
+
+def check_kind(owner: str, key: str, kind: Any) -> str:
+    return check_choice(owner, key, kind, CONTEXT_TYPES)
+
+
+# ---- the CLI's pairing checks --------------------------------------------------------------------------
+
+# What a callback reads from the DataModule (by class name, so this module imports no callback). A
+# callback class may instead declare ``requires_data = ("<DataModule method>", ...)``.
+CALLBACK_NEEDS: dict[str, tuple[str, ...]] = {
+    "BanditRegretCallback": ("bandit_suites",),
+    "InContextRolloutCallback": ("evaluation_suites",),
+    "HeldOutPairAccuracyCallback": ("heldout_pairs",),
+}
+_FEATURE_HINTS = {
+    "bandit_suites": "dueling-bandit data (setting icprl_lightning.data.settings.BanditDuels)",
+    "evaluation_suites": "data with held-out in-context rollouts (an MDP setting: StepPreferences, "
+                         "TrajectoryPairs, RewardContexts, RewardTrajectories)",
+    "heldout_pairs": "trajectory_preference data (setting icprl_lightning.data.settings.TrajectoryPairs)",
+}
+
+
+def consumed_kinds(model: Any) -> tuple[str, ...] | None:
+    """The context kinds a method trains on: ``model.consumes``, else ``(model.context_kind,)``, else None."""
+    kinds = getattr(model, "consumes", None)
+    if kinds is None:
+        kind = getattr(model, "context_kind", None)
+        return None if kind is None else (kind,)
+    return (kinds,) if isinstance(kinds, str) else tuple(kinds)
+
+
+def data_offers(datamodule: Any, feature: str) -> bool:
+    """Does ``datamodule`` serve ``feature`` (``bandit_suites``, ``evaluation_suites``, ``heldout_pairs``)?
+
+    A DataModule may say so with ``offers`` (a set of names); otherwise it offers what it has a method for.
+    """
+    offers = getattr(datamodule, "offers", None)
+    if offers is not None:
+        return feature in offers
+    return callable(getattr(datamodule, feature, None))
+
+
+def pairing_errors(model: Any, datamodule: Any, callbacks: Iterable[Any] = ()) -> list[str]:
+    """Every mismatch between the model, the data and the callbacks, one sentence each (empty: they fit)."""
+    errors = []
+    m_name, d_name = type(model).__name__, type(datamodule).__name__
+    kinds = consumed_kinds(model)
+    produced = getattr(datamodule, "context_kind", None)
+    if kinds is not None and produced is not None and produced not in kinds:
+        where = f" ({datamodule.data_dir})" if getattr(datamodule, "data_dir", None) else ""
+        errors.append(f"{m_name} trains on {' or '.join(kinds)} contexts but {d_name}{where} holds {produced} "
+                      f"contexts: pick a method for {produced} data or a data setting of kind {kinds[0]}")
+    for flag in ("pairs", "query_labels"):
+        needs = getattr(model, f"needs_{flag}", False)
+        has = getattr(datamodule, flag, None)
+        if needs and has is False:
+            errors.append(f"{m_name} (as configured) needs {d_name} with {flag}: true; set "
+                          f"--data.init_args.{flag} true")
+    for cb in callbacks:
+        needs = getattr(cb, "requires_data", None)
+        if needs is None:
+            needs = next((CALLBACK_NEEDS[k.__name__] for k in type(cb).__mro__ if k.__name__ in CALLBACK_NEEDS), ())
+        for feature in needs:
+            if not data_offers(datamodule, feature):
+                served = f" ({produced} contexts)" if produced else ""
+                errors.append(f"{type(cb).__name__} reads {feature}() of the data, but {d_name}{served} has none: "
+                              f"it needs {_FEATURE_HINTS.get(feature, feature)}, or drop the callback")
+    return errors
+
+
+def check_pairing(model: Any, datamodule: Any, callbacks: Iterable[Any] = ()) -> None:
+    """Raise ``ValueError`` listing every mismatch of ``pairing_errors``."""
+    errors = pairing_errors(model, datamodule, callbacks)
+    if errors:
+        raise HyperparameterError("the model, data and callbacks do not fit together:\n  - " + "\n  - ".join(errors))
