@@ -65,8 +65,7 @@ def reach_data(context_kind: str = "step_preference", **kw: Any) -> PreferenceDa
         defaults.update(trajectories_per_task=20)
     else:
         defaults.update(train_policy="pretraining", trajectories_per_task=10)
-    renames = {"n_train_tasks": "n_train", "n_test_tasks": "n_test", "tprl_quality": "pretraining_target"}
-    return build(ReachTaskFamily, SETTINGS[context_kind], defaults, kw, renames)
+    return build(ReachTaskFamily, SETTINGS[context_kind], defaults, kw, RENAMES["reach"])
 
 
 def bandit_data(**kw: Any) -> PreferenceDataModule:
@@ -103,17 +102,23 @@ def trajectory_pairs(family, goals, p, bt_temperature, rng, behavior=False, quer
     return arrays, rewards, stats
 
 
-FAMILY_PARAMS = {"darkroom": ({"size", "horizon", "n_train_tasks", "n_test_tasks", "terminate_on_goal", "seed"}, {}),
-                 "reach": ({"seed", "n_train", "n_test", "horizon", "num_workers"},
-                           {"n_train_tasks": "n_train", "n_test_tasks": "n_test",
-                            "tprl_quality": "pretraining_target"}),
-                 "bandit": ({"n_arms", "dim", "horizon", "seed", "bt_temperature", "dts_alpha"}, {})}
+RENAMES = {"reach": {"n_train_tasks": "n_train", "n_test_tasks": "n_test", "tprl_quality": "pretraining_target"}}
+
+
+def _family_class(family: str) -> type:
+    if family == "reach":
+        from icprl_lightning.families.metaworld_reach import ReachTaskFamily
+
+        return ReachTaskFamily
+    return {"darkroom": DarkRoomFamily, "bandit": LinearDuelingBanditFamily}[family]
+
+
 DATAMODULE_PARAMS = set(inspect.signature(PreferenceDataModule.__init__).parameters) - {"self", "family", "setting"}
 
 
 def cli_data_args(family: str, **kw: Any) -> list[str]:
     """``--data.init_args...`` command-line arguments, each routed to the family, the setting or the DataModule."""
-    params, renames = FAMILY_PARAMS[family]
+    params, renames = _params(_family_class(family)), RENAMES.get(family, {})
     out = []
     for key, value in kw.items():
         key = renames.get(key, key)

@@ -182,7 +182,8 @@ class TaskFamily(Family):
         """Maps returns [B] of episodes on held-out tasks ``task_index`` to normalized returns.
 
         (R − R_uniform) / (R_optimal − R_uniform) with each episode's own task's references when the
-        manifest has them per task, else R / R_optimal.
+        manifest has them per task (Meta-World's "optimal" is its expert: ``expert_return``), else
+        R / R_optimal (DarkRoom's closed-form optimum).
         """
         per_task = info.get("test_reference_per_task")
         if per_task is None:

@@ -8,7 +8,7 @@ Both kinds of rollouts are episodes of ``ReachVectorEnv`` (worker processes over
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from functools import cached_property
 from typing import Any
 
@@ -82,13 +82,6 @@ class ReachTaskFamily(TaskFamily):
     def make_env(self, goals: np.ndarray, num_workers: int | None = None) -> ReachVectorEnv:
         workers = self.num_workers if num_workers is None else num_workers
         return ReachVectorEnv(goals, horizon=self.horizon, num_workers=workers)
-
-    def normalizer(self, info: Mapping[str, Any], quality: str, task_index: np.ndarray) -> Callable:
-        """(R − R_uniform) / (R_expert − R_uniform) with the episode's own goal's references."""
-        per_task = info["test_reference_per_task"]
-        uniform = np.asarray(per_task["uniform_return"])[task_index]
-        expert = np.asarray(per_task["expert_return"])[task_index]
-        return lambda returns: (returns - uniform) / (expert - uniform)
 
     def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
         """This family's own calibration (kept: its datasets' bytes depend on it; see ``oracle.py``)."""
