@@ -224,6 +224,11 @@ def main(args: list[str] | None = None) -> None:
 
         evaluate_main(argv[1:])
         return
+    if argv and argv[0] == "reproduce":
+        from icprl_lightning.reproduce import main as reproduce_main
+
+        reproduce_main(argv[1:])
+        return
     if argv and argv[0] == "import":
         from icprl_lightning.data.importer import main as import_main
 

@@ -13,7 +13,7 @@ from factories import cli_data_args, config_args
 
 from icprl_lightning import load_agent
 from icprl_lightning.cli import main, run_cli
-from icprl_lightning.evaluation import other_task_contexts, rollout_in_context, summarize
+from icprl_lightning.evaluation import diagnose_suite, rollout_in_context, rollout_seeds, summarize
 
 DARKROOM_CONFIGS = ["configs/icpo_darkroom.yaml", "configs/dp2t_darkroom.yaml", "configs/dpt_darkroom.yaml"]
 
@@ -95,18 +95,27 @@ def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, mo
     suites = {s.quality: s for s in val.datamodule.evaluation_suites()}
     high = rollout_in_context(load_agent(ckpt, seed=0), suites["high"], seed=0)
     assert table["results"]["ICPO"]["high"]["return"] == pytest.approx(summarize(suites["high"], high)["return"])
-    # --other-task-contexts: every episode keeps its env but gets the contexts of the next held-out task
+    # --contexts: every episode keeps its env and episode seed; only the context changes, as each diagnostic states
     suite = suites["low"]
-    moved = other_task_contexts(suite)
+    moved = diagnose_suite(suite, "other_task")
     np.testing.assert_array_equal(moved.task_index, suite.task_index)
     np.testing.assert_array_equal(moved.context.states.numpy(), np.roll(suite.context.states.numpy(), 1, axis=0))
     assert not np.array_equal(moved.context.states.numpy(), suite.context.states.numpy())
-    main(["evaluate", "--seeds", "0", "--run", f"ICPO={saved[0]}:{ckpt}", "--other-task-contexts",
-          "--out", str(tmp_path / "other")])
+    main(["evaluate", "--seeds", "0", "1", "--run", f"ICPO={saved[0]}:{ckpt},{ckpt}", "--contexts", "own",
+          "other_task", "flipped_labels", "random_labels", "--out", str(tmp_path / "other")])
     other = json.loads((tmp_path / "other.json").read_text())
-    assert other["other_task_contexts"] and "another held-out task" in (tmp_path / "other.md").read_text()
-    low = rollout_in_context(load_agent(ckpt, seed=0), moved, seed=0)
-    assert other["results"]["ICPO"]["low"]["return"] == pytest.approx(summarize(moved, low)["return"])
+    assert other["contexts"] == ["own", "other_task", "flipped_labels", "random_labels"]
+    assert "other task's context" in (tmp_path / "other.md").read_text()
+    assert (tmp_path / "other_diagnostics.png").stat().st_size > 0
+    diagnosed = other["diagnostics"]["ICPO"]
+    for name in ("other_task", "flipped_labels", "random_labels"):
+        # the JSON's row is the deployed checkpoint on the diagnosed contexts (random labels drawn per episode seed)
+        episodes = rollout_seeds(lambda seed: load_agent(ckpt, seed=seed), suite, [0, 1],
+                                 lambda seed, name=name: diagnose_suite(suite, name, seed))
+        assert diagnosed[name]["low"]["return"] == pytest.approx(summarize(suite, episodes)["return"])
+    # two checkpoints = two training seeds: the row is their mean, with each seed's value beside it
+    row = other["results"]["ICPO"]["high"]
+    assert row["training_seeds"] == 2 and row["per_seed"]["return"] == [pytest.approx(row["return"])] * 2
 
 
 def _repo() -> str:

@@ -27,7 +27,7 @@ LAYERS = [
     ("evaluation",),                                # rollouts and duels through the Agent
     ("callbacks",),
     ("baselines",),                                 # SB3 from scratch
-    ("cli", "__init__"),
+    ("cli", "reproduce", "__init__"),               # the commands (reproduce runs `icprl fit` and `evaluate`)
 ]
 REWARD_FREE = ("models", "methods", "deploy")
 FORBIDDEN_FOR_REWARD_FREE = ("families", "data")

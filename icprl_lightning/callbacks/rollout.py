@@ -7,19 +7,30 @@ latent return on unseen tasks) and the callback logs, under ``val/<env>/<quality
 env reports it), and the behavior policy's and optimal policy's returns beside them. The sanity check is
 skipped. The same numbers are printed as a table (``print_table``; ``evaluation.report.results_table``), so a
 run shows its held-out results in the terminal, not only in the logger.
+
+``diagnostics`` (``flipped_labels``, ``random_labels``, ``other_task``; ``evaluation.diagnostics``) adds the
+same episodes with the context changed as each states, logged under ``val/<env>/<quality>/<diagnostic>/``:
+a run then shows as it trains whether its policy reads the labels of its context. Label diagnostics apply
+only to contexts with labels.
 """
 
 from __future__ import annotations
 
 import lightning as L
 
+from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, applicable, diagnose_suite
 from icprl_lightning.evaluation.report import results_table, show_table
 from icprl_lightning.evaluation.rollout import rollout_in_context, summarize
 
 
 class InContextRolloutCallback(L.Callback):
     def __init__(self, every_n_epochs: int = 1, greedy: bool | None = None, seed: int = 0,
-                 print_table: bool = True) -> None:
+                 print_table: bool = True, diagnostics: list[str] | tuple[str, ...] = ()) -> None:
+        for diagnostic in diagnostics:
+            if diagnostic not in DIAGNOSTICS or diagnostic == "own":
+                raise ValueError(f"InContextRolloutCallback: diagnostics must be among "
+                                 f"{[d for d in DIAGNOSTICS if d != 'own']}, got {diagnostic!r}")
+        self.diagnostics = tuple(diagnostics)
         self.every_n_epochs = every_n_epochs
         self.print_table = print_table
         self.greedy = greedy
@@ -43,6 +54,12 @@ class InContextRolloutCallback(L.Callback):
             prefix = f"val/{suite.env_name}/{suite.quality}"
             self.last_results[prefix] = result
             pl_module.log_dict({f"{prefix}/{k}": float(v) for k, v in result.items()}, on_epoch=True)
+            for diagnostic in applicable(suite.context, self.diagnostics):
+                changed = diagnose_suite(suite, diagnostic, seed=self.seed)
+                result = summarize(changed, rollout_in_context(agent, changed, seed=self.seed))
+                self.last_results[f"{prefix}/{diagnostic}"] = result
+                pl_module.log_dict({f"{prefix}/{diagnostic}/{k}": float(v) for k, v in result.items()
+                                    if not k.startswith(("behavior", "optimal", "expert"))}, on_epoch=True)
         if self.print_table and trainer.is_global_zero:
             when = f", epoch {epoch}" if trainer.state.fn == "fit" else ""
             show_table(results_table(self.last_results, f"In-context rollouts on held-out tasks{when}"))

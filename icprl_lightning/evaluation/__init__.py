@@ -3,10 +3,13 @@
 Every evaluation deploys through the public ``Agent`` (``icprl_lightning.deploy``) and reports the paper's
 metrics: the latent return of in-context episodes on held-out tasks (``rollout``), and the weak regret
 of dueling-bandit duels vs context size (``duels``; paper, appendix "Dueling Bandit Experiments").
-``report`` renders both as tables, markdown, JSON and figures; ``command`` is the ``icprl evaluate`` CLI.
+``diagnostics`` changes a context in one stated way (flipped or random labels, another task's
+context) to show what a policy reads from it. ``report`` renders both as tables, markdown, JSON and
+figures; ``command`` is the ``icprl evaluate`` CLI.
 The suites come from ``icprl_lightning.data.suites``: evaluation imports data, never the reverse.
 """
 
+from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, diagnose, diagnose_suite
 from icprl_lightning.evaluation.duels import (
     agent_duels,
     behavior_duels,
@@ -21,12 +24,12 @@ from icprl_lightning.evaluation.duels import (
 from icprl_lightning.evaluation.report import regret_table, results_table
 from icprl_lightning.evaluation.rollout import (
     episode_stats,
-    other_task_contexts,
     rollout_in_context,
     rollout_seeds,
     summarize,
 )
 
-__all__ = ["agent_duels", "behavior_duels", "curve_mean_sem", "dts_duels", "episode_stats",
-           "evaluate_duels", "method_name", "other_task_contexts", "regret_curve", "regret_table", "results_table",
-           "rollout_in_context", "rollout_seeds", "seed_mean_curves", "summarize", "summarize_regret"]
+__all__ = ["DIAGNOSTICS", "agent_duels", "behavior_duels", "curve_mean_sem", "diagnose", "diagnose_suite",
+           "dts_duels", "episode_stats", "evaluate_duels", "method_name", "regret_curve", "regret_table",
+           "results_table", "rollout_in_context", "rollout_seeds", "seed_mean_curves", "summarize",
+           "summarize_regret"]

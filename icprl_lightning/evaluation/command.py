@@ -8,24 +8,30 @@
     icprl evaluate --title "Linear dueling bandits" --seeds 0 \
         --run ICPO=configs/icpo_bandit.yaml:runs/icprl/<id>/checkpoints/last.ckpt --out docs/results/bandit
 
-Each ``--run`` is NAME=CONFIG:CHECKPOINT. The config's data section names the dataset (generated if
-missing) whose held-out contexts the checkpoint is deployed on, through ``load_agent`` exactly as a user
-would. The metric is the paper's: for MDP families (DarkRoom, Meta-World Reach; I-PRL and T-PRL) the
-latent return of an episode on a held-out task (and success rate where the environment reports it), mean
-± sem over held-out tasks per context quality (low / medium / high); for dueling bandits the weak regret
-min(R* − R(a), R* − R(a')) of the duel played after each context size h = 1..H (paper, appendix "Dueling
-Bandit Experiments"), at h = H and averaged over h, mean ± sem over held-out problems per context source.
-Every seed is one more episode per context (new start state, new action samples) or, for bandits, new
-draws of the method's second arm and of DTS.
+Each ``--run`` is NAME=CONFIG:CHECKPOINT[,CHECKPOINT...]: several checkpoints are *training seeds* of one
+method on the same data, and each row is then the mean ± sem over training seeds of each seed's
+held-out mean (each seed's numbers under ``per_seed`` in the JSON); with one checkpoint the ± is the sem
+over held-out tasks. The config's data section names the dataset (generated if missing) whose held-out
+contexts the checkpoints are deployed on, through ``load_agent`` exactly as a user would. The metric is
+the paper's: for MDP families (DarkRoom, Meta-World Reach; I-PRL and T-PRL) the latent return of an
+episode on a held-out task (and success rate where the environment reports it), per context quality
+(low / medium / high); for dueling bandits the weak regret min(R* − R(a), R* − R(a')) of the duel played
+after each context size h = 1..H (paper, appendix "Dueling Bandit Experiments"), at h = H and averaged
+over h, per context source. Every ``--seeds`` value is one more episode per context (new start state, new
+action samples) or, for bandits, new draws of the method's second arm and of DTS.
 
 Reference rows come from one run's dataset (``--reference NAME``, default: the first ``--run``; the
 outputs name it): the behavior policy of each context quality and the optimal (DarkRoom) or expert
 (Reach) policy; for bandits Double Thompson Sampling on the same comparisons and the contexts' behaviour
 policy. ``--baseline NAME=JSON`` adds a from-scratch learner's result (``baselines/``; it does not
-depend on the context, so the same value is shown for every quality). ``--other-task-contexts`` gives
-each episode a context of another held-out task (same quality): the drop in return against the normal
-run measures how much a policy uses its context. Writes ``<out>.json`` (all numbers), ``<out>.md`` (the
-tables) and ``<out>.png``, and prints the JSON (without the bandits' per-h curves).
+depend on the context, so the same value is shown for every quality).
+
+``--contexts`` adds the context diagnostics of ``evaluation.diagnostics`` beside each run's own-context
+row: ``flipped_labels`` (every label inverted), ``random_labels`` (fair coins), ``other_task`` (another
+held-out task's context). The label diagnostics apply to runs whose contexts have labels (preference
+methods); the others get only ``other_task``. Writes ``<out>.json`` (all numbers; the diagnostics under
+``diagnostics``), ``<out>.md`` (the tables) and ``<out>.png``, and prints the JSON (without the
+bandits' per-h curves).
 """
 
 from __future__ import annotations
@@ -34,11 +40,15 @@ import argparse
 import json
 from typing import Any
 
+import numpy as np
+
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.deploy import load_agent
+from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, applicable, diagnose_suite
 from icprl_lightning.evaluation.duels import BASELINES, curve_mean_sem, seed_mean_curves, summarize_regret
 from icprl_lightning.evaluation.report import baseline_row, reference_rows, write_outputs
-from icprl_lightning.evaluation.rollout import episode_stats, other_task_contexts, rollout_seeds
+from icprl_lightning.evaluation.rollout import episode_stats, rollout_seeds
+from icprl_lightning.metrics import mean_sem
 
 RESERVED = {"behavior", "optimal", "expert", *BASELINES}
 
@@ -46,7 +56,8 @@ RESERVED = {"behavior", "optimal", "expert", *BASELINES}
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="icprl evaluate", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", action="append", required=True, help="NAME=CONFIG:CHECKPOINT")
+    parser.add_argument("--run", action="append", required=True,
+                        help="NAME=CONFIG:CHECKPOINT[,CHECKPOINT...] (several: training seeds of one method)")
     parser.add_argument("--baseline", action="append", default=[], help="NAME=JSON of a from-scratch baseline")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     actions = parser.add_mutually_exclusive_group()
@@ -54,21 +65,24 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     actions.add_argument("--greedy", action="store_true", help="argmax / Gaussian mean for every method")
     parser.add_argument("--reference", help="NAME of the --run whose dataset gives the reference rows "
                         "(behavior and optimal/expert; bandits: DTS and behaviour; default: the first)")
-    parser.add_argument("--other-task-contexts", action="store_true",
-                        help="give each episode a context of another held-out task (does the policy use it?)")
+    parser.add_argument("--contexts", nargs="+", choices=DIAGNOSTICS, default=["own"],
+                        help="context diagnostics beside the own-context rows: flipped_labels, random_labels, "
+                        "other_task (evaluation.diagnostics)")
     parser.add_argument("--title", default="held-out tasks", help="figure title")
     parser.add_argument("--out", required=True, help="output path without extension")
     args = parser.parse_args(argv)
     args.runs = {}
     for spec in args.run:
         name, _, rest = spec.partition("=")
-        config, _, checkpoint = rest.partition(":")
+        config, _, checkpoints = rest.partition(":")
+        checkpoint = [c for c in checkpoints.split(",") if c]
         if not (name and config and checkpoint):
-            parser.error(f"--run {spec!r} is not NAME=CONFIG:CHECKPOINT")
+            parser.error(f"--run {spec!r} is not NAME=CONFIG:CHECKPOINT[,CHECKPOINT...]")
         if name in RESERVED or name in args.runs:
             parser.error(f"--run name {name!r} is taken (reference rows: {', '.join(sorted(RESERVED))}; "
                          "names must be unique)")
         args.runs[name] = (config, checkpoint)
+    args.diagnostics = [d for d in dict.fromkeys(args.contexts) if d != "own"]
     args.reference = args.reference or next(iter(args.runs))
     if args.reference not in args.runs:
         parser.error(f"--reference {args.reference!r} names no --run (runs: {', '.join(args.runs)})")
@@ -76,32 +90,64 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def evaluate_rollouts(dm, checkpoint: str, seeds: list[int], greedy: bool | None,
-                      other_task: bool = False) -> dict[str, dict[str, Any]]:
-    """Per quality: mean and sem over held-out tasks of return, normalized return and success (if reported).
+def over_training_seeds(per_seed: list[dict[str, float]]) -> dict[str, Any]:
+    """One row from each training seed's held-out means: mean ± sem over seeds, and the seeds' values.
 
-    Each row also holds the suite's ``reference`` (behavior, optimal/expert) for ``reference_rows``.
+    With a single seed the row is that seed's (its ± is the sem over held-out tasks).
     """
-    out: dict[str, dict[str, Any]] = {}
+    if len(per_seed) == 1:
+        return dict(per_seed[0])
+    row: dict[str, Any] = {"training_seeds": len(per_seed), "per_seed": {}}
+    for key in (k for k in per_seed[0] if not k.endswith("_sem")):
+        values = [seed_row[key] for seed_row in per_seed]
+        row[key], row[f"{key}_sem"] = mean_sem(values)
+        row["per_seed"][key] = values
+    return row
+
+
+def evaluate_rollouts(dm, checkpoints: list[str], seeds: list[int], greedy: bool | None,
+                      diagnostics: list[str] = ()) -> tuple[dict[str, dict[str, Any]], dict[str, dict]]:
+    """Per quality, the own-context row (mean over held-out tasks, over training seeds as ``over_training_seeds``)
+    and per applicable diagnostic the same; the own rows hold the suite's ``reference`` for ``reference_rows``.
+    """
+    own: dict[str, dict[str, Any]] = {}
+    diagnosed: dict[str, dict[str, dict[str, Any]]] = {}
     for suite in dm.evaluation_suites():
-        if other_task:
-            suite = other_task_contexts(suite)
-        episodes = rollout_seeds(lambda seed: load_agent(checkpoint, greedy=greedy, seed=seed), suite, seeds)
-        out[suite.quality] = {**episode_stats(suite, episodes), "reference": suite.reference}
-    return out
+        for diagnostic in ["own", *applicable(suite.context, diagnostics)]:
+            # the random labels of episode seed s are drawn from s: every checkpoint sees the same contexts
+            def run(checkpoint: str, suite=suite, diagnostic=diagnostic) -> dict[str, float]:
+                return episode_stats(suite, rollout_seeds(
+                    lambda seed: load_agent(checkpoint, greedy=greedy, seed=seed), suite, seeds,
+                    lambda seed: diagnose_suite(suite, diagnostic, seed)))
+            row = over_training_seeds([run(c) for c in checkpoints])
+            if diagnostic == "own":
+                own[suite.quality] = {**row, "reference": suite.reference}
+            else:
+                diagnosed.setdefault(diagnostic, {})[suite.quality] = row
+    return own, diagnosed
 
 
-def evaluate_bandit(dm, checkpoint: str, name: str, seeds: list[int], greedy: bool | None, baselines: bool
+def evaluate_bandit(dm, checkpoints: list[str], name: str, seeds: list[int], greedy: bool | None, baselines: bool,
+                    diagnostic: str = "own"
                     ) -> tuple[dict[str, dict[str, dict[str, float]]], dict[str, dict[str, dict[str, list]]]]:
-    """Per source, per method (``name``, and DTS and behaviour with ``baselines``): summary and per-h curve."""
+    """Per source, per method (``name``, and DTS and behaviour with ``baselines``): summary and per-h curve.
+
+    Several checkpoints (training seeds): each summary is the mean ± sem over seeds of each seed's
+    mean over problems (``over_training_seeds``), the curve the mean of the seeds' curves.
+    """
     summaries: dict[str, dict[str, dict[str, float]]] = {}
     curves: dict[str, dict[str, dict[str, list]]] = {}
     for suite in dm.bandit_suites():
-        per_method = seed_mean_curves(lambda seed: load_agent(checkpoint, greedy=greedy, seed=seed), suite, name,
-                                      seeds, baselines=baselines)
-        for method, curve in per_method.items():
-            summaries.setdefault(method, {})[suite.source] = summarize_regret(curve)
-            mean, sem = curve_mean_sem(curve)
+        suite = diagnose_suite(suite, diagnostic, seed=0)
+        per_checkpoint = [seed_mean_curves(lambda seed, c=c: load_agent(c, greedy=greedy, seed=seed), suite, name,
+                                           seeds, baselines=baselines and i == 0)
+                          for i, c in enumerate(checkpoints)]
+        for method in per_checkpoint[0]:
+            runs = [p[method] for p in per_checkpoint if method in p]
+            summaries.setdefault(method, {})[suite.source] = over_training_seeds([summarize_regret(c) for c in runs])
+            means = [curve_mean_sem(c) for c in runs]
+            mean = np.mean([m for m, _ in means], axis=0)
+            sem = means[0][1] if len(runs) == 1 else np.std([m for m, _ in means], axis=0, ddof=1) / np.sqrt(len(runs))
             curves.setdefault(method, {})[suite.source] = {"mean": mean.tolist(), "sem": sem.tolist()}
     return summaries, curves
 
@@ -113,24 +159,33 @@ def _is_bandit(dm) -> bool:
 
 def bandit_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | None) -> dict[str, Any]:
     """Weak-regret summaries and curves of every run, with DTS and behaviour rows from the reference's dataset."""
-    results, curves = {}, {}
-    for name, (_, checkpoint) in args.runs.items():
-        summaries, run_curves = evaluate_bandit(datamodules[name], checkpoint, name, args.seeds, greedy,
+    results, curves, diagnostics = {}, {}, {}
+    for name, (_, checkpoints) in args.runs.items():
+        summaries, run_curves = evaluate_bandit(datamodules[name], checkpoints, name, args.seeds, greedy,
                                                 baselines=name == args.reference)
         results.update(summaries)  # the run's own row, and the reference run's DTS and behaviour rows
         curves.update(run_curves)
+        for diagnostic in args.diagnostics:
+            diagnosed, _ = evaluate_bandit(datamodules[name], checkpoints, name, args.seeds, greedy,
+                                           baselines=False, diagnostic=diagnostic)
+            diagnostics.setdefault(name, {})[diagnostic] = diagnosed[name]
     dm = datamodules[args.reference]
     suite = dm.bandit_suites()[0]
     order = [*args.runs, *BASELINES]
     return {"runs": args.run, "reference_rows_from": args.reference, "dataset": str(dm.path),
             "n_eval_problems": int(suite.expected_rewards.shape[0]), "horizon": int(suite.context.preferred.shape[1]),
-            "results": {n: results[n] for n in order}, "curves": {n: curves[n] for n in order}}
+            "results": {n: results[n] for n in order}, "curves": {n: curves[n] for n in order},
+            "diagnostics": diagnostics}
 
 
 def rollout_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | None) -> dict[str, Any]:
     """Per-quality rows of every run, the reference run's behavior and optimal/expert rows, the baselines."""
-    results = {name: evaluate_rollouts(datamodules[name], checkpoint, args.seeds, greedy, args.other_task_contexts)
-               for name, (_, checkpoint) in args.runs.items()}
+    results, diagnostics = {}, {}
+    for name, (_, checkpoints) in args.runs.items():
+        results[name], diagnosed = evaluate_rollouts(datamodules[name], checkpoints, args.seeds, greedy,
+                                                     args.diagnostics)
+        if diagnosed:
+            diagnostics[name] = diagnosed
     references = reference_rows(results[args.reference])
     for rows in results.values():
         for row in rows.values():
@@ -140,8 +195,8 @@ def rollout_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | 
     for spec in args.baseline:
         name, _, path = spec.partition("=")
         results[name] = baseline_row(path, qualities)
-    return {"other_task_contexts": args.other_task_contexts, "runs": args.run, "baselines": args.baseline,
-            "reference_rows_from": args.reference, "results": results}
+    return {"contexts": ["own", *args.diagnostics], "runs": args.run, "baselines": args.baseline,
+            "reference_rows_from": args.reference, "results": results, "diagnostics": diagnostics}
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -156,8 +211,8 @@ def main(argv: list[str] | None = None) -> dict:
         args.parser.error("runs mix dueling bandits with MDP families: "
                           + ", ".join(f"{n} ({'bandit' if b else 'MDP'})" for n, b in kinds.items()))
     bandit = kinds[args.reference]
-    if bandit and (args.other_task_contexts or args.baseline):
-        args.parser.error("--other-task-contexts and --baseline apply to MDP families, not dueling bandits")
+    if bandit and args.baseline:
+        args.parser.error("--baseline applies to MDP families, not dueling bandits")
     actions_used = "sampled" if args.sample else "greedy" if args.greedy else "each method's default"
     payload: dict[str, Any] = {"title": args.title, "seeds": args.seeds, "actions": actions_used}
     payload.update((bandit_payload if bandit else rollout_payload)(args, datamodules, greedy))

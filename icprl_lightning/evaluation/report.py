@@ -144,9 +144,38 @@ def rollout_markdown(payload: dict) -> str:
                if any(m in results[n][q] for n in names for q in qualities)]
     lines = _markdown_tables(results, qualities, metrics, "method")
     lines.append(f"Behavior and {'optimal' if 'optimal' in results else 'expert'} rows: the dataset of "
-                 f"{payload['reference_rows_from']}. Seeds {payload['seeds']}, actions: {payload['actions']}."
-                 + (" Contexts from another held-out task." if payload["other_task_contexts"] else ""))
+                 f"{payload['reference_rows_from']}. {_seeds_note(payload)}")
+    lines += diagnostics_markdown(payload, [m for m in metrics if m[0] != "success"], "method")
     return "\n".join(lines) + "\n"
+
+
+DIAGNOSTIC_NAMES = {"own": "own context", "random_labels": "random labels", "flipped_labels": "flipped labels",
+                    "other_task": "other task's context"}
+
+
+def _seeds_note(payload: dict) -> str:
+    trained = {spec.partition("=")[0]: len(spec.partition(":")[2].split(",")) for spec in payload["runs"]}
+    several = {n: k for n, k in trained.items() if k > 1}
+    seeds = (f"Training seeds: {', '.join(f'{n} {k}' for n, k in several.items())} (mean ± sem over training "
+             "seeds of each seed's held-out mean); " if several else "One training seed per run; ")
+    return seeds + f"episode seeds {payload['seeds']}, actions: {payload['actions']}."
+
+
+def diagnostics_markdown(payload: dict, metrics: list[tuple[str, str, int]], head: str) -> list[str]:
+    """Per metric one table: for each run its own-context row and, below it, each context diagnostic's."""
+    diagnostics = payload.get("diagnostics") or {}
+    if not diagnostics:
+        return []
+    results = payload["results"]
+    rows = {}
+    for name, per in diagnostics.items():
+        rows[f"{name}, {DIAGNOSTIC_NAMES['own']}"] = results[name]
+        for diagnostic, res in per.items():
+            rows[f"{name}, {DIAGNOSTIC_NAMES[diagnostic]}"] = res
+    columns = list(next(iter(rows.values())))
+    lines = ["", "Context diagnostics (evaluation.diagnostics: the same episodes with every label inverted, "
+             "labels replaced by fair coins, or another held-out task's context):", ""]
+    return lines + _markdown_tables(rows, columns, [(m, f"{t}, by context", d) for m, t, d in metrics], head)
 
 
 def rollout_figure(payload: dict, path: str | Path) -> None:
@@ -171,15 +200,42 @@ def rollout_figure(payload: dict, path: str | Path) -> None:
     fig.savefig(path, dpi=120)
 
 
+def diagnostics_figure(payload: dict, path: str | Path, metric: str) -> None:
+    """One panel per context quality / source: per run, a bar per context (own and each diagnostic)."""
+    from matplotlib.figure import Figure
+
+    diagnostics, results = payload["diagnostics"], payload["results"]
+    names = list(diagnostics)
+    contexts = list(dict.fromkeys(["own", *(d for per in diagnostics.values() for d in per)]))
+    columns = list(results[names[0]])
+    fig = Figure(figsize=(3.2 * len(columns) + 2.5, 3.4), layout="tight")
+    axes = fig.subplots(1, len(columns), sharey=True, squeeze=False)
+    width = 0.8 / len(contexts)
+    for ax, column in zip(axes[0], columns, strict=True):
+        for i, context in enumerate(contexts):
+            rows = [results[n] if context == "own" else diagnostics[n].get(context, {}) for n in names]
+            ax.bar(np.arange(len(names)) + i * width, [r.get(column, {}).get(metric, np.nan) for r in rows], width,
+                   yerr=[r.get(column, {}).get(f"{metric}_sem", 0.0) or 0.0 for r in rows], capsize=2,
+                   label=DIAGNOSTIC_NAMES[context])
+        ax.set_xticks(np.arange(len(names)) + width * (len(contexts) - 1) / 2, names, fontsize=8)
+        ax.set_title(column, fontsize=9)
+    axes[0][0].set_ylabel(metric.replace("_", " "))
+    axes[0][-1].legend(fontsize=7, bbox_to_anchor=(1.02, 1), loc="upper left")
+    fig.suptitle(f"{payload['title']}: context diagnostics", fontsize=9)
+    fig.savefig(path, dpi=120)
+
+
 # ---- bandit outputs (icprl evaluate) ---------------------------------------------------------------
 
 def regret_markdown(payload: dict) -> str:
     """Per statistic (h = H, mean over h) a table: one row per method, DTS and behaviour; one column per source."""
     results, _, sources = _groups(payload)
-    lines = _markdown_tables(results, sources, [(m, t, 3) for m, t in REGRET_METRICS], "method")
+    metrics = [(m, t, 3) for m, t in REGRET_METRICS]
+    lines = _markdown_tables(results, sources, metrics, "method")
     lines.append(f"Weak regret min(R* − R(a), R* − R(a')), mean ± sem over {payload['n_eval_problems']} held-out "
                  f"problems, H = {payload['horizon']}. DTS and behaviour rows: the dataset of "
-                 f"{payload['reference_rows_from']}. Seeds {payload['seeds']}, actions: {payload['actions']}.")
+                 f"{payload['reference_rows_from']}. {_seeds_note(payload)}")
+    lines += diagnostics_markdown(payload, metrics, "method")
     return "\n".join(lines) + "\n"
 
 
@@ -207,10 +263,14 @@ def regret_figure(payload: dict, path: str | Path) -> None:
 
 
 def write_outputs(payload: dict[str, Any], out: str | Path) -> None:
-    """``<out>.json`` (all numbers), ``<out>.md`` (the tables) and ``<out>.png`` (the figure)."""
+    """``<out>.json`` (all numbers), ``<out>.md`` (the tables), ``<out>.png`` (the figure) and, with context
+    diagnostics, ``<out>_diagnostics.png``."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(payload, indent=2))
     bandit = "curves" in payload
     out.with_suffix(".md").write_text(regret_markdown(payload) if bandit else rollout_markdown(payload))
     (regret_figure if bandit else rollout_figure)(payload, out.with_suffix(".png"))
+    if payload.get("diagnostics"):
+        diagnostics_figure(payload, out.with_name(out.name + "_diagnostics.png"),
+                           "weak_regret" if bandit else "return")

@@ -9,15 +9,14 @@ flag was raised at some step, metaworld's criterion.
 * ``rollout_in_context(agent, suite, seed)`` — one episode per context of an ``EvalSuite``;
 * ``rollout_seeds(make_agent, suite, seeds)`` — the same for several episode seeds, concatenated;
 * ``episode_stats`` / ``summarize`` — mean ± sem over held-out tasks (``summarize`` adds the suite's
-  behavior and optimal/expert references);
-* ``other_task_contexts(suite)`` — each episode conditioned on another held-out task's context, which
-  measures how much a policy uses its context.
+  behavior and optimal/expert references).
+
+The context diagnostics (flipped / random labels, another task's context) are ``evaluation.diagnostics``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -66,16 +65,19 @@ def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0) -> dic
     return out
 
 
-def rollout_seeds(make_agent: Callable[[int], AgentLike], suite: EvalSuite, seeds: Sequence[int]
-                  ) -> dict[str, np.ndarray]:
+def rollout_seeds(make_agent: Callable[[int], AgentLike], suite: EvalSuite, seeds: Sequence[int],
+                  suite_for_seed: Callable[[int], EvalSuite] | None = None) -> dict[str, np.ndarray]:
     """Episodes for every seed (a fresh ``make_agent(seed)`` each), concatenated seed-major: [len(seeds) · B].
 
     Every seed is one more episode per context (new start state, new action samples). ``normalized_return``
     is added per seed, because a suite's ``normalize`` maps its own B episodes (per-task references).
+    ``suite_for_seed(seed)``, when given, is the suite deployed at that seed (a context diagnostic drawn
+    from the seed, ``evaluation.diagnostics``); it must keep ``suite``'s tasks.
     """
     episodes: dict[str, list[np.ndarray]] = {}
     for seed in seeds:
-        result = rollout_in_context(make_agent(seed), suite, seed=seed)
+        deployed = suite if suite_for_seed is None else suite_for_seed(seed)
+        result = rollout_in_context(make_agent(seed), deployed, seed=seed)
         if suite.normalize is not None:
             result["normalized_return"] = suite.normalize(result["return"])
         for name, values in result.items():
@@ -107,16 +109,3 @@ def episode_stats(suite: EvalSuite, episodes: dict[str, np.ndarray]) -> dict[str
 def summarize(suite: EvalSuite, episodes: dict[str, np.ndarray]) -> dict[str, float]:
     """Mean ± sem over held-out tasks of return (normalized too) and success, plus the references."""
     return {**episode_stats(suite, episodes), **suite.reference}
-
-
-def other_task_contexts(suite: EvalSuite) -> EvalSuite:
-    """The suite with each episode given a context of the *next* held-out task (same quality).
-
-    Rows are task-major with the same number of episodes per task, so rolling every context field by that
-    number moves each task's contexts to the following task. A policy that uses its context should lose
-    return; one that ignores it should not.
-    """
-    per_task = int(np.bincount(suite.task_index).max())
-    if np.any(np.roll(suite.task_index, per_task) == suite.task_index):
-        raise ValueError("other-task contexts need task-major rows with the same count per task")
-    return replace(suite, context=suite.context.map(lambda x: torch.roll(x, per_task, dims=0)))

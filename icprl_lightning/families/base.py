@@ -155,6 +155,20 @@ class TaskFamily(Family):
         """H steps of the behavior process per row, for I-PRL and reward contexts: one episode each."""
         return self.episode_rollouts(tasks, rng)
 
+    def independent_state_rollouts(self, tasks: np.ndarray, rng: np.random.Generator) -> Rollouts:
+        """H steps per row whose state is drawn afresh at every step, independently of the task and of the
+        actions taken (DPT's own DarkRoom data; the I-PRL and reward settings' ``state_source="uniform"``).
+
+        ``step(actions)`` returns the state the action leads to and its latent reward, as usual; the next
+        ``observations()`` are a new independent draw. Such states carry no information about the task,
+        so a model can only read the task from the labels (or rewards) of its context. A family that
+        can place its simulator in a drawn state overrides this.
+        """
+        raise NotImplementedError(
+            f"{type(self).__name__} does not draw states independently of its trajectories: "
+            "state_source='uniform' needs the family to implement independent_state_rollouts(tasks, rng); "
+            "use state_source='rollout'")
+
     def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
         """Mixing level per named target share of the optimal return: ``{name: {"mixing": p, ...}}``.
 

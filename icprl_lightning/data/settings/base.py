@@ -34,6 +34,19 @@ from icprl_lightning.families.base import QUALITIES, Family, TaskFamily
 from icprl_lightning.validation import check_choice, check_increasing, check_int
 
 PRETRAINING = "pretraining"  # name of a setting's extra calibrated policy (T-PRL's 50% policy)
+STATE_SOURCES = ("rollout", "uniform")  # where per-step contexts' states come from (``context_process``)
+
+
+def context_process(family: TaskFamily, tasks: np.ndarray, rng: np.random.Generator, state_source: str):
+    """The rollouts a per-step context (I-PRL, reward) is drawn from.
+
+    ``"rollout"``: the family's behavior process (the paper's; states follow the actions taken);
+    ``"uniform"``: every state drawn independently over the state space (DPT's DarkRoom data), so the
+    states carry no information about the task (``TaskFamily.independent_state_rollouts``).
+    """
+    if state_source == "uniform":
+        return family.independent_state_rollouts(tasks, rng)
+    return family.context_rollouts(tasks, rng)
 
 
 def steps(horizon: int, description: str, progress: bool) -> Iterator[int]:
@@ -51,10 +64,12 @@ def chunks(n: int, limit: int | None, description: str) -> Iterator[tuple[slice,
 
 
 def rollout_behavior(family: TaskFamily, tasks: np.ndarray, mixing: np.ndarray, rng: np.random.Generator,
-                     episodes: bool, progress: bool, description: str) -> dict[str, np.ndarray]:
+                     episodes: bool, progress: bool, description: str, state_source: str = "rollout"
+                     ) -> dict[str, np.ndarray]:
     """One trajectory of the mixed policy π_p per row of ``tasks`` (p per row in ``mixing``).
 
-    ``episodes`` picks the family's episode rollouts (T-PRL) or its context process (reward contexts).
+    ``episodes`` picks the family's episode rollouts (T-PRL) or its context process (reward contexts,
+    whose states come from ``state_source``, see ``context_process``).
     Returns ``states`` [N, H, S] (s_h before acting), ``actions`` [N, H, ...], latent ``rewards`` [N, H],
     ``next_states`` [N, H, S] and the oracle's actions at the visited states ``optimal`` (oracle only).
     """
@@ -66,9 +81,10 @@ def rollout_behavior(family: TaskFamily, tasks: np.ndarray, mixing: np.ndarray, 
            "rewards": np.empty((n, horizon), dtype=np.float32),
            "next_states": np.empty((n, horizon, family.obs_dim), dtype=np.float32),
            "optimal": np.empty((n, horizon, *act_shape), dtype=family.action_dtype)}
-    start = family.episode_rollouts if episodes else family.context_rollouts
     for rows, label in chunks(n, family.max_parallel, description):
-        with start(tasks[rows], rng) as roll:
+        roll = (family.episode_rollouts(tasks[rows], rng) if episodes
+                else context_process(family, tasks[rows], rng, state_source))
+        with roll:
             for h in steps(horizon, label, progress):
                 state = roll.oracle_state()
                 out["states"][rows, h] = roll.observations()

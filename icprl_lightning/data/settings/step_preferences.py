@@ -13,9 +13,14 @@ The knobs are the paper's choices made explicit:
   own quality (training rows: ``train_policy``);
 * ``bt_temperature``: the label temperature (paper: 1; Meta-World's per-step differences need ≈ 0.02);
 * ``next_state_follows``: which action the trajectory continues with — ``"preferred"`` (the paper's),
-  ``"rejected"``, ``"first"`` (the ``first_policy`` side) or ``"second"``. With the paper's choice the
-  state trajectory walks towards the goal, so a model can read the task from the states alone and
-  ignore the labels; ``"first"`` with a uniform first policy makes the states uninformative.
+  ``"rejected"``, ``"behavior"`` (the behavior policy's proposal, whatever the label) or ``"first"``
+  (the ``first_policy`` side). With the paper's choice the state trajectory walks towards the goal
+  through the labels, so a model can read the task from the states alone and ignore the labels;
+  ``"first"`` with a uniform first policy gives states that carry no task information;
+* ``state_source``: ``"rollout"`` (the states of that trajectory) or ``"uniform"`` (every state drawn
+  independently over the state space, as DPT's own DarkRoom data; ``next_state_follows`` then only
+  decides the reported next state). With states that carry no task information the labels are a
+  model's only signal: the *label-informative* recipe.
 
 The context arrays are ``states`` [N, H, S] float32, ``actions`` / ``alt_actions`` (the two slots),
 ``preferred`` [N, H] uint8 (1 = ``actions`` won), plus the oracle's query labels for DPT/DP²T.
@@ -27,12 +32,12 @@ from typing import Any
 
 import numpy as np
 
-from icprl_lightning.data.settings.base import MDPSetting, chunks, steps
+from icprl_lightning.data.settings.base import STATE_SOURCES, MDPSetting, chunks, context_process, steps
 from icprl_lightning.families.base import TaskFamily
 from icprl_lightning.preferences import label_agreement, sample_preferences
 from icprl_lightning.validation import check_choice, check_positive
 
-FOLLOW = ("preferred", "rejected", "first", "second")
+FOLLOW = ("preferred", "rejected", "behavior", "first")
 
 
 class StepPreferences(MDPSetting):
@@ -41,19 +46,20 @@ class StepPreferences(MDPSetting):
     kind = "step_preference"
 
     def __init__(self, first_policy: str = "uniform", bt_temperature: float = 1.0,
-                 next_state_follows: str = "preferred", **kwargs: Any) -> None:
+                 next_state_follows: str = "preferred", state_source: str = "rollout", **kwargs: Any) -> None:
         super().__init__(**kwargs)
         owner = type(self).__name__
         check_choice(owner, "first_policy", first_policy, ("uniform", *self.policy_names()))
         check_choice(owner, "next_state_follows", next_state_follows, FOLLOW)
         check_positive(owner, "bt_temperature", bt_temperature)
+        self.state_source = check_choice(owner, "state_source", state_source, STATE_SOURCES)
         self.first_policy = first_policy
         self.bt_temperature = bt_temperature
         self.next_state_follows = next_state_follows
 
     def knobs(self) -> dict[str, Any]:
         return {"first_policy": self.first_policy, "bt_temperature": self.bt_temperature,
-                "next_state_follows": self.next_state_follows}
+                "next_state_follows": self.next_state_follows, "state_source": self.state_source}
 
     def contexts(self, family: TaskFamily, tasks: np.ndarray, quality: np.ndarray, mixing: np.ndarray,
                  rng: np.random.Generator, evaluation: bool, progress: bool, description: str
@@ -70,7 +76,7 @@ class StepPreferences(MDPSetting):
         first_p = None if self.first_policy == "uniform" else mixing[self.policy_names().index(self.first_policy)]
         for rows, label in chunks(n, family.max_parallel, description):
             m = rows.stop - rows.start
-            with family.context_rollouts(tasks[rows], rng) as roll:
+            with context_process(family, tasks[rows], rng, self.state_source) as roll:
                 for h in steps(horizon, label, progress):
                     state = roll.oracle_state()
                     first = (oracle.uniform_actions(state, rng) if first_p is None
@@ -93,7 +99,7 @@ class StepPreferences(MDPSetting):
     def _next_action(self, y: np.ndarray, both: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:
         if self.next_state_follows == "first":
             return first
-        if self.next_state_follows == "second":
+        if self.next_state_follows == "behavior":
             return second
         won = _column(y == 1, both.ndim - 1)
         if self.next_state_follows == "preferred":

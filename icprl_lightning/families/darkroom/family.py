@@ -4,7 +4,9 @@
 Contexts are not episodes: an I-PRL or reward context holds H steps of the behavior process, and with
 ``terminate_on_goal`` a trajectory that enters the goal continues from a fresh random start (paper:
 "every context holds H comparisons"). ``context_rollouts`` is that process, drawing starts from the
-dataset's generator; ``episode_rollouts`` are episodes of ``DarkRoomVectorEnv`` (T-PRL pairs, references).
+dataset's generator; ``independent_state_rollouts`` draws every state uniformly over the grid instead
+(label-informative contexts); ``episode_rollouts`` are episodes of ``DarkRoomVectorEnv`` (T-PRL pairs,
+references).
 """
 
 from __future__ import annotations
@@ -96,6 +98,9 @@ class DarkRoomFamily(TaskFamily):
     def context_rollouts(self, tasks: np.ndarray, rng: np.random.Generator) -> ContinuingRollouts:
         return ContinuingRollouts(self, tasks, rng)
 
+    def independent_state_rollouts(self, tasks: np.ndarray, rng: np.random.Generator) -> IndependentStates:
+        return IndependentStates(self, tasks, rng)
+
     def reference_groups(self, qualities: tuple[str, ...]) -> list[tuple[str, ...]]:
         """Each quality's references are measured right after its evaluation split (draw order = bytes)."""
         return [(q,) for q in qualities]
@@ -153,3 +158,25 @@ class ContinuingRollouts:
 
     def __exit__(self, *exc: object) -> None:
         return None
+
+
+class IndependentStates(ContinuingRollouts):
+    """H steps on N goals whose cell is drawn uniformly over the grid at every step (goal cell included).
+
+    ``step`` reports the cell the action leads to and its reward, then the next state is a new uniform
+    draw: the states say nothing about the goal (DPT's DarkRoom data; ``TaskFamily.independent_state_rollouts``).
+    """
+
+    def __init__(self, family: DarkRoomFamily, goals: np.ndarray, rng: np.random.Generator) -> None:
+        self.family, self.goals, self.rng = family, np.asarray(goals), rng
+        self.states = self._draw()
+        self.t = 0
+
+    def _draw(self) -> np.ndarray:
+        return self.rng.integers(0, self.family.size, size=self.goals.shape)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nxt = transition(self.states, actions, self.family.size)
+        reward = step_reward(nxt, self.goals)
+        self.states, self.t = self._draw(), self.t + 1
+        return nxt.astype(np.float32), reward

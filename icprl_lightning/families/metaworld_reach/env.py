@@ -34,6 +34,10 @@ Pitfalls of metaworld 3.1.1 handled here:
   the goal *site* position, is visual: sites neither collide nor enter reach-v3's observation or
   reward (which read ``_target_pos``); the mocap-weld reset writes the same constants for every env.
   Dynamics are bit-identical to a stock env (tested).
+
+``ReachVectorEnv.place_hands`` moves every hand to a given point mid-episode (metaworld's own reset-time
+hand placement, from the episode's post-reset state), so a state can be drawn independently of the
+actions taken (``ReachTaskFamily.independent_state_rollouts``).
 """
 
 from __future__ import annotations
@@ -65,6 +69,13 @@ PUCK_HIGH = np.array([0.1, 0.7, 0.02])
 # SawyerReachEnvV3.reset_model spins while the puck–goal xy distance is below this.
 MIN_PUCK_GOAL_XY = 0.15
 _PUCK_GOAL_MARGIN = 0.01
+# reach-v3's mocap box (SawyerReachEnvV3 passes hand_low/high and leaves mocap_low/high to default to
+# them): where ``set_xyz_action`` clips the mocap, i.e. every target an action sequence can reach.
+HAND_LOW = np.array([-0.5, 0.40, 0.05])
+HAND_HIGH = np.array([0.5, 1.0, 0.5])
+# Simulator steps (of frame_skip frames) ``place_hands`` lets the hand settle: ``_reset_hand``'s default.
+PLACE_STEPS = 50
+_STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
 class ReachOracleState(NamedTuple):
@@ -144,6 +155,7 @@ class ReachVectorEnv(gym.vector.VectorEnv):
     the horizon raises. ``options={"goals": [B, 3]}`` swaps the goals at reset. As in Gymnasium,
     ``reset(seed=s)`` reseeds ``self.np_random``, the source of all randomness (the puck positions drawn
     at each reset), so a seed and an action sequence fix every observation and reward.
+    ``place_hands(positions [B, 3])`` moves the hands mid-episode without counting a step.
 
     ``num_workers=0`` steps in this process; otherwise the envs are split into that many contiguous
     slices, one worker process each, exchanging actions and observations through shared memory (one
@@ -205,6 +217,30 @@ class ReachVectorEnv(gym.vector.VectorEnv):
         truncated = np.full(self.num_envs, self.t >= self.horizon)
         return self._masked_obs(), reward, terminated, truncated, {"success": -reward <= SUCCESS_RADIUS}
 
+    def place_hands(self, positions: np.ndarray) -> np.ndarray:
+        """Move each env's hand to ``positions`` [B, 3] (inside ``HAND_LOW``–``HAND_HIGH``) mid-episode;
+        returns the new observations [B, 39] float32, goal zeroed.
+
+        Per env, from the MuJoCo state saved right after this episode's ``reset`` (so the placed state depends
+        on the position and the episode only, never on the actions taken since): the mocap is set to the
+        position and the arm simulated ``PLACE_STEPS`` steps with the gripper open, exactly metaworld's
+        ``_reset_hand``; then the joint velocities are zeroed (an arm at rest) and the observation recomputed
+        with its previous frame obs[18:36] equal to the current one, as after a reset. The episode's step
+        count ``t`` does not change; the puck is back at its post-reset place, unless the arm pushed it on its
+        way there. The mocap ends exactly at the position, the hand ≈ 0.005 from it where the arm reaches
+        (gravity sag of the weld; median over the box 0.0056), but the box is larger than the arm's reach: of
+        uniform draws, ≈ 40% end > 0.02 and ≈ 30% > 0.05 away (up to ≈ 0.15), mostly at y ≳ 0.88 or |x| ≳ 0.4;
+        300 settling steps instead of 50 still leave ≈ 24% > 0.02.
+        """
+        positions = np.array(positions, dtype=np.float64)
+        if positions.shape != (self.num_envs, 3):
+            raise ValueError(f"positions must have shape [{self.num_envs}, 3], got {list(positions.shape)}")
+        if np.any(positions < HAND_LOW) or np.any(positions > HAND_HIGH):
+            raise ValueError(f"positions must lie in the hand box [{HAND_LOW.tolist()}, {HAND_HIGH.tolist()}]")
+        self._pool.arrays["place"][:] = positions
+        self._pool.run("place")
+        return self._masked_obs()
+
     def oracle_state(self) -> ReachOracleState:
         """Hand, previous hand, TCP, mocap and goal per env (copies): for oracles and evaluation only."""
         obs = self._pool.arrays["obs"]
@@ -227,8 +263,9 @@ class ReachVectorEnv(gym.vector.VectorEnv):
         return obs
 
 
-# Per env: puck + goal (the task vector), action, raw metaworld observation, tcp, mocap position.
-_FIELDS = {"tasks": 6, "actions": ACTION_DIM, "obs": OBS_DIM, "tcp": 3, "mocap": 3}
+# Per env: puck + goal (the task vector), action, raw metaworld observation, tcp, mocap position, and
+# the hand position ``place_hands`` asks for.
+_FIELDS = {"tasks": 6, "actions": ACTION_DIM, "obs": OBS_DIM, "tcp": 3, "mocap": 3, "place": 3}
 
 
 class _EnvSlice:
@@ -239,6 +276,7 @@ class _EnvSlice:
         self.envs = [_CompiledReachEnv() for _ in range(lo, hi)]
         for env in self.envs:
             env.max_path_length = horizon
+        self._after_reset: list[np.ndarray | None] = [None] * len(self.envs)  # MuJoCo state after reset
 
     def run(self, command: str, arrays: dict[str, np.ndarray]) -> None:
         for i, env in enumerate(self.envs, start=self.lo):
@@ -246,11 +284,36 @@ class _EnvSlice:
                 task = arrays["tasks"][i]
                 env.set_task(reach_task(goal=task[3:], puck=task[:3]))
                 obs, _ = env.reset()
+                self._after_reset[i - self.lo] = _get_state(env)
+            elif command == "place":
+                obs = self._place_hand(env, self._after_reset[i - self.lo], arrays["place"][i].copy())
             else:
                 obs, *_ = env.step(arrays["actions"][i].copy())
             arrays["obs"][i] = obs
             arrays["tcp"][i] = env.tcp_center
             arrays["mocap"][i] = env.data.mocap_pos[0]
+
+    @staticmethod
+    def _place_hand(env: SawyerReachEnvV3, after_reset: np.ndarray | None, position: np.ndarray) -> np.ndarray:
+        """``ReachVectorEnv.place_hands`` for one env: metaworld's ``_reset_hand`` aimed at ``position``."""
+        if after_reset is None:
+            raise RuntimeError("place_hands needs an episode: call reset() first")
+        mujoco.mj_setState(env.model, env.data, after_reset, _STATE_SPEC)
+        mocap_id = env.model.body_mocapid[env.data.body("mocap").id]
+        for _ in range(PLACE_STEPS):  # SawyerXYZEnv._reset_hand with hand_init_pos = position
+            env.data.mocap_pos[mocap_id][:] = position
+            env.data.mocap_quat[mocap_id][:] = np.array([1, 0, 1, 0])
+            env.do_simulation([-1, 1], env.frame_skip)
+        env.data.qvel[:] = 0.0
+        mujoco.mj_forward(env.model, env.data)
+        env._prev_obs = env._get_curr_obs_combined_no_goal()  # previous frame = current, as after reset
+        return env._get_obs()
+
+
+def _get_state(env: SawyerReachEnvV3) -> np.ndarray:
+    state = np.empty(mujoco.mj_stateSize(env.model, _STATE_SPEC))
+    mujoco.mj_getState(env.model, env.data, state, _STATE_SPEC)
+    return state
 
 
 def _views(raw: dict[str, object], num_envs: int) -> dict[str, np.ndarray]:

@@ -4,6 +4,8 @@ H = 150, 39-D observations with the goal zeroed, 4-D continuous actions.
 
 Both kinds of rollouts are episodes of ``ReachVectorEnv`` (worker processes over both cores), at most
 ``max_parallel`` at once (≈0.7 MB per env); ``num_workers`` does not change any number.
+``independent_state_rollouts`` places every hand at a fresh uniform point of the hand box before each
+step (``ReachVectorEnv.place_hands``), so its states are independent of the goal and of the actions.
 """
 
 from __future__ import annotations
@@ -15,9 +17,11 @@ from typing import Any
 import numpy as np
 
 from icprl_lightning.contexts import ActionSpec
-from icprl_lightning.families.base import TaskFamily
+from icprl_lightning.families.base import EnvRollouts, TaskFamily
 from icprl_lightning.families.metaworld_reach.env import (
     ACTION_DIM,
+    HAND_HIGH,
+    HAND_LOW,
     HORIZON,
     OBS_DIM,
     ReachVectorEnv,
@@ -83,6 +87,9 @@ class ReachTaskFamily(TaskFamily):
         workers = self.num_workers if num_workers is None else num_workers
         return ReachVectorEnv(goals, horizon=self.horizon, num_workers=workers)
 
+    def independent_state_rollouts(self, tasks: np.ndarray, rng: np.random.Generator) -> IndependentHandStates:
+        return IndependentHandStates(self.make_env(tasks), rng)
+
     def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
         """This family's own calibration (kept: its datasets' bytes depend on it; see ``oracle.py``)."""
         return calibrate_mixing(self, targets, episodes, seed=seed, num_workers=self.num_workers)
@@ -112,3 +119,36 @@ class ReachTaskFamily(TaskFamily):
     def config(self) -> dict[str, Any]:
         return {"family": self.name, "env": "reach-v3", "expert": "tcp", "horizon": self.horizon,
                 "n_train_tasks": self.n_train, "n_test_tasks": self.n_test, "seed": self.seed}
+
+
+class IndependentHandStates(EnvRollouts):
+    """Episodes of ``ReachVectorEnv`` whose hands are placed at a fresh uniform point before every step.
+
+    Reset with a seed drawn from ``rng`` (as ``EnvRollouts``), then the positions: before the first step
+    and after every step, one draw ``rng.uniform(HAND_LOW, HAND_HIGH, [N, 3])`` and
+    ``env.place_hands`` (from the episode's post-reset state, so a placed state does not depend on the
+    actions). ``step`` returns the observation the action leads to and its latent reward; the next
+    ``observations()`` are the new placement. The box is reach-v3's mocap box (= its hand box), the
+    targets ``set_xyz_action`` can reach; the goal box is a small part of it, and its far corners are
+    beyond the arm's reach (the hand stops short, see ``place_hands``).
+    """
+
+    def __init__(self, env: ReachVectorEnv, rng: np.random.Generator) -> None:
+        self.rng = rng
+        try:
+            super().__init__(env, rng)
+            self._obs = self._place()
+        except BaseException:
+            env.close()
+            raise
+
+    def _place(self) -> np.ndarray:
+        return self.env.place_hands(self.rng.uniform(HAND_LOW, HAND_HIGH, size=(self.env.num_envs, 3)))
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        observed, reward, *_ = self.env.step(actions)
+        self._obs = self._place()
+        return observed, reward
+
+    def __enter__(self) -> IndependentHandStates:
+        return self

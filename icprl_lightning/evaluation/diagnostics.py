@@ -1,0 +1,83 @@
+"""Context diagnostics: what a deployed policy reads from its context (issue 15).
+
+A preference method should infer the task from the *labels* of its context. Each diagnostic changes an
+evaluation context in exactly one stated way, all else equal (states, actions, task, episode seed):
+
+* ``own`` — the context as generated (the paper's evaluation);
+* ``flipped_labels`` — every label inverted (y → 1 − y): the pairs say the opposite. A policy that reads
+  the labels should fall towards, or below, a random policy;
+* ``random_labels`` — every label replaced by a fair coin flip (fixed by the diagnostic's seed): the
+  labels say nothing. What a policy still earns here, it earns from the states and actions alone;
+* ``other_task`` — the whole context of another held-out task (the next task, same quality): nothing
+  in it is about this task. What a policy still earns here, it earns without its context.
+
+So own − random_labels is what the labels add, random_labels − other_task what the rest of the context
+(its states, its behavior actions) adds. The label diagnostics apply to contexts with labels
+(``preferred``: I-PRL steps, T-PRL pairs, bandit duels), not to DPT's or DIT's reward contexts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import torch
+
+DIAGNOSTICS = ("own", "random_labels", "flipped_labels", "other_task")
+LABEL_DIAGNOSTICS = ("random_labels", "flipped_labels")
+
+
+def has_labels(context: Any) -> bool:
+    return getattr(context, "preferred", None) is not None
+
+
+def flipped_labels(context: Any) -> Any:
+    """The context with every label inverted: y → 1 − y (same dtype)."""
+    return replace(context, preferred=1 - context.preferred)
+
+
+def random_labels(context: Any, seed: int) -> Any:
+    """The context with every label a fair coin flip drawn from ``seed`` (same shape and dtype)."""
+    generator = torch.Generator().manual_seed(seed)
+    coins = torch.randint(0, 2, context.preferred.shape, generator=generator)
+    return replace(context, preferred=coins.to(context.preferred.dtype))
+
+
+def other_task(context: Any, task_index: np.ndarray) -> Any:
+    """Each row's context replaced by the same row of the *next* task (rows task-major, equal counts per task)."""
+    per_task = int(np.bincount(task_index).max())
+    if np.any(np.roll(task_index, per_task) == task_index):
+        raise ValueError("other-task contexts need task-major rows with the same count per task and ≥ 2 tasks")
+    return context.map(lambda x: torch.roll(x, per_task, dims=0))
+
+
+def diagnose(context: Any, diagnostic: str, task_index: np.ndarray, seed: int = 0) -> Any:
+    """``context`` changed as ``diagnostic`` states (see the module docstring)."""
+    if diagnostic not in DIAGNOSTICS:
+        raise ValueError(f"unknown context diagnostic {diagnostic!r}; known: {list(DIAGNOSTICS)}")
+    if diagnostic in LABEL_DIAGNOSTICS and not has_labels(context):
+        raise ValueError(f"{diagnostic} needs a context with preference labels; {type(context).__name__} has none")
+    if diagnostic == "flipped_labels":
+        return flipped_labels(context)
+    if diagnostic == "random_labels":
+        return random_labels(context, seed)
+    if diagnostic == "other_task":
+        return other_task(context, task_index)
+    return context
+
+
+def applicable(context: Any, diagnostics: tuple[str, ...] | list[str]) -> list[str]:
+    """The diagnostics that apply to ``context`` (label ones only where it has labels), in order."""
+    return [d for d in diagnostics if d not in LABEL_DIAGNOSTICS or has_labels(context)]
+
+
+def diagnose_suite(suite: Any, diagnostic: str, seed: int = 0) -> Any:
+    """An ``EvalSuite`` or ``BanditSuite`` whose context is changed as ``diagnostic`` states.
+
+    A bandit suite holds one problem per row, so its other-task context is the next problem's.
+    """
+    task_index = getattr(suite, "task_index", None)
+    if task_index is None:
+        task_index = np.arange(suite.context.batch_size)
+    return replace(suite, context=diagnose(suite.context, diagnostic, task_index, seed))

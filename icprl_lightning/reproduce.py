@@ -1,0 +1,258 @@
+"""``icprl reproduce TABLE``: regenerate a results table of ``docs/RESULTS.md`` and its figure from scratch.
+
+    icprl reproduce --list
+    icprl reproduce darkroom_ipref                     # 3 training seeds per method, then evaluation
+    icprl reproduce darkroom_ipref --seeds 0 --jobs 1  # a quicker, one-seed version
+    icprl reproduce darkroom_ipref --dry-run           # print the commands only
+
+A table is a list of runs (a method's configs and overrides) and the evaluations made of them. Every run
+is trained once per training seed (``--seed_everything``) with ``icprl fit`` in its own process, at most
+``--jobs`` at a time (``OMP_NUM_THREADS`` = cores / jobs each), its log in ``<work>/<table>/<run>-seed<s>.log``;
+then ``icprl evaluate`` deploys each run's last checkpoints (all its training seeds) on the held-out
+contexts with the context diagnostics, greedy and sampled, and writes ``docs/results/<table>[_sampled]``
+(``.json``, ``.md``, ``.png``, ``_diagnostics.png``). Training seeds share the dataset (the family's seed
+fixes it); they differ in initialization, shuffling and the pairs drawn.
+
+Each fit logs to CSV; the rollout callback's held-out returns per epoch become ``learning_curves`` in
+the summary and ``docs/results/<table>_curve.png``. A finished fit records its checkpoint in
+``<run>-seed<s>.json``; running the command again skips it, so an interrupted reproduction resumes where
+it stopped (``--refit`` trains again). The command prints, and writes to
+``docs/results/<table>_reproduce.json``, each stage's wall-clock seconds, the checkpoints and the exact
+commands.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from icprl_lightning.io import write_json_atomic
+
+ALL_CONTEXTS = ("own", "random_labels", "flipped_labels", "other_task")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One method of a table: its configs (stacked, as repeated ``--config``) and command-line overrides."""
+
+    name: str
+    configs: tuple[str, ...]
+    overrides: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One ``icprl evaluate`` of a table's runs: output suffix and its flags (``--greedy``, ``--sample``)."""
+
+    suffix: str
+    flags: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Table:
+    name: str
+    title: str
+    runs: tuple[Run, ...]
+    evaluations: tuple[Evaluation, ...] = (Evaluation("", ("--greedy",)), Evaluation("_sampled", ("--sample",)))
+    contexts: tuple[str, ...] = ALL_CONTEXTS
+    eval_seeds: tuple[int, ...] = (0, 1)
+    baselines: tuple[str, ...] = ()
+    budget: str = ""  # what one run costs here, for --list
+    extra: dict = field(default_factory=dict)
+
+
+DARKROOM_METHODS = (("DPT", "configs/dpt_darkroom.yaml"), ("DP2T", "configs/dp2t_darkroom.yaml"),
+                    ("ICPO", "configs/icpo_darkroom.yaml"))
+UNIFORM_STATES = "configs/overlays/uniform_states.yaml"
+LABEL_INFORMATIVE_ICPO = ("--data.init_args.setting.init_args.trajectories_per_task", "400",
+                          "--trainer.max_epochs", "4")
+
+
+def _lambda_beta_runs() -> tuple[Run, ...]:
+    runs = []
+    for beta in ("1", "0.3", "0.1", "0.03"):
+        for lam in ("0.25", "0.5", "0.75", "1"):
+            runs.append(Run(f"b{beta}_l{lam}", ("configs/icpo_darkroom.yaml",),
+                            ("--model.init_args.beta", beta, "--model.init_args.lam", lam)))
+    return tuple(runs)
+
+
+TABLES = {t.name: t for t in (
+    Table("darkroom_ipref", "DarkRoom I-PRL, the paper's recipe (states follow the preferred action)",
+          tuple(Run(n, (c,)) for n, c in DARKROOM_METHODS),
+          baselines=("DQN from scratch=docs/results/dqn_from_scratch_darkroom.json",),
+          budget="≈ 1.5 min per fit on 1 core"),
+    Table("darkroom_ipref_uniform", "DarkRoom I-PRL, label-informative recipe (states drawn uniformly)",
+          tuple(Run(n, (c, UNIFORM_STATES), LABEL_INFORMATIVE_ICPO) for n, c in DARKROOM_METHODS),
+          baselines=("DQN from scratch=docs/results/dqn_from_scratch_darkroom.json",),
+          budget="≈ 12 min per fit on 1 core (4,000 steps of 32 contexts)"),
+    Table("darkroom_lambda_beta", "ICPO on DarkRoom I-PRL: β × λ", _lambda_beta_runs(), contexts=("own",),
+          budget="≈ 1.5 min per fit on 1 core; 16 fits per seed"),
+    Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
+          evaluations=(Evaluation("", ()),), contexts=("own", "random_labels", "flipped_labels"),
+          eval_seeds=(0,), budget="≈ 4 min per fit on 1 core"),
+)}
+
+
+def fit_command(run: Run, seed: int, root: Path) -> list[str]:
+    """``icprl fit`` of one run and training seed, logging to CSV in ``<root>/<run>-seed<s>/version_0``."""
+    configs = [arg for config in run.configs for arg in ("--config", config)]
+    return ["icprl", "fit", *configs, *run.overrides, "--seed_everything", str(seed),
+            "--trainer.logger", "lightning.pytorch.loggers.CSVLogger", "--trainer.logger.init_args.save_dir",
+            str(root), "--trainer.logger.init_args.name", f"{run.name}-seed{seed}",
+            "--trainer.default_root_dir", str(root)]
+
+
+def learning_curve(checkpoint: str) -> list[dict[str, float]]:
+    """The rollout callback's held-out returns per validation epoch of a fit (its CSV log beside the checkpoint):
+    ``[{"step": s, "<quality>": return, ...}]``, empty when the fit logged none."""
+    import csv
+
+    path = Path(checkpoint).parent.parent / "metrics.csv"
+    if not path.exists():
+        return []
+    points: dict[int, dict[str, float]] = {}
+    with open(path) as f:
+        for row in csv.DictReader(f):
+            for key, value in row.items():
+                parts = key.split("/")
+                if value and len(parts) == 4 and parts[0] == "val" and parts[3] == "return":
+                    points.setdefault(int(row["step"]), {"step": int(row["step"])})[parts[2]] = float(value)
+    return [points[s] for s in sorted(points)]
+
+
+def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -> None:
+    """Held-out return vs optimizer steps, one panel per quality, one line per run (each training seed thin)."""
+    from matplotlib.figure import Figure
+
+    qualities = list(dict.fromkeys(k for per in curves.values() for c in per.values() for p in c for k in p
+                                   if k != "step"))
+    if not qualities:
+        return
+    fig = Figure(figsize=(3.6 * len(qualities) + 1.5, 3.2), layout="tight")
+    axes = fig.subplots(1, len(qualities), sharey=True, squeeze=False)[0]
+    for ax, quality in zip(axes, qualities, strict=True):
+        for i, (name, per_seed) in enumerate(curves.items()):
+            color = f"C{i}"
+            for j, curve in enumerate(per_seed.values()):
+                points = [(p["step"], p[quality]) for p in curve if quality in p]
+                if points:
+                    ax.plot(*zip(*points, strict=True), color=color, alpha=0.8, marker=".",
+                            label=name if j == 0 else None)
+        ax.set_title(f"{quality} contexts", fontsize=9)
+        ax.set_xlabel("optimizer steps")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("held-out return (rollout callback)")
+    axes[-1].legend(fontsize=7)
+    fig.suptitle(f"{table.title}: return during training, one line per training seed", fontsize=9)
+    fig.savefig(path, dpi=120)
+
+
+def evaluate_command(table: Table, evaluation: Evaluation, checkpoints: dict[str, list[str]], out_dir: Path
+                     ) -> list[str]:
+    command = ["icprl", "evaluate", "--title", table.title, "--seeds", *map(str, table.eval_seeds),
+               *evaluation.flags, "--out", str(out_dir / f"{table.name}{evaluation.suffix}")]
+    if table.contexts != ("own",):
+        command += ["--contexts", *table.contexts]
+    for run in table.runs:
+        # the first seed's saved config.yaml names the run's exact dataset (configs, overlays and overrides)
+        config = Path(checkpoints[run.name][0]).parent.parent / "config.yaml"
+        command += ["--run", f"{run.name}={config}:{','.join(checkpoints[run.name])}"]
+    for baseline in table.baselines:
+        command += ["--baseline", baseline]
+    return command
+
+
+def _run_fit(command: list[str], log: Path, record: Path, threads: int) -> dict:
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "WANDB_MODE": os.environ.get("WANDB_MODE", "disabled")}
+    start = time.time()
+    with open(log, "w") as out:
+        code = subprocess.run([sys.executable, "-m", "icprl_lightning.cli", *command[1:]], stdout=out,
+                              stderr=subprocess.STDOUT, env=env).returncode
+    if code != 0:
+        raise RuntimeError(f"{shlex.join(command)} failed (exit {code}); its log: {log}")
+    last = [line.split(":", 1)[1].strip() for line in log.read_text().splitlines()
+            if line.startswith("last checkpoint:")]
+    if not last:
+        raise RuntimeError(f"{shlex.join(command)} printed no 'last checkpoint:' line; its log: {log}")
+    result = {"command": shlex.join(command), "checkpoint": last[-1], "seconds": round(time.time() - start, 1)}
+    write_json_atomic(record, result)
+    return result
+
+
+def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Path, refit: bool = False,
+              dry_run: bool = False) -> dict:
+    root = work / table.name
+    root.mkdir(parents=True, exist_ok=True)
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    todo, done = [], {}
+    for run in table.runs:
+        for seed in seeds:
+            record = root / f"{run.name}-seed{seed}.json"
+            command = fit_command(run, seed, root / "runs")
+            if record.exists() and not refit:
+                done[(run.name, seed)] = json.loads(record.read_text())
+            else:
+                todo.append((run.name, seed, command, root / f"{run.name}-seed{seed}.log", record))
+    if dry_run:
+        for *_, command, _, _ in todo:
+            print(shlex.join(command))
+        return {}
+    start = time.time()
+    print(f"{table.name}: {len(todo)} fits to run ({len(done)} done earlier), {jobs} at a time", flush=True)
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = {(name, seed): pool.submit(_run_fit, command, log, record, threads)
+                   for name, seed, command, log, record in todo}
+        for key, future in futures.items():
+            done[key] = future.result()
+            print(f"  {key[0]} seed {key[1]}: {done[key]['seconds']} s -> {done[key]['checkpoint']}", flush=True)
+    fit_seconds = round(time.time() - start, 1)
+    checkpoints = {run.name: [done[(run.name, s)]["checkpoint"] for s in seeds] for run in table.runs}
+    evaluations = []
+    from icprl_lightning.evaluation.command import main as evaluate_main
+
+    for evaluation in table.evaluations:
+        command = evaluate_command(table, evaluation, checkpoints, out_dir)
+        began = time.time()
+        evaluate_main(command[2:])
+        evaluations.append({"command": shlex.join(command), "seconds": round(time.time() - began, 1)})
+    curves = {run.name: {str(s): learning_curve(done[(run.name, s)]["checkpoint"]) for s in seeds}
+              for run in table.runs}
+    curve_figure(table, curves, out_dir / f"{table.name}_curve.png")
+    summary = {"table": table.name, "training_seeds": seeds, "jobs": jobs, "fit_wall_seconds": fit_seconds,
+               "fits": {f"{n}-seed{s}": r for (n, s), r in sorted(done.items())}, "evaluations": evaluations,
+               "learning_curves": curves, "total_wall_seconds": round(time.time() - start, 1)}
+    write_json_atomic(out_dir / f"{table.name}_reproduce.json", summary)
+    print(f"{table.name}: fits {fit_seconds} s wall, all {summary['total_wall_seconds']} s "
+          f"-> {out_dir / table.name}.md", flush=True)
+    return summary
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(prog="icprl reproduce", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("table", nargs="?", choices=sorted(TABLES))
+    parser.add_argument("--list", action="store_true", help="list the tables and what one fit costs")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
+    parser.add_argument("--jobs", type=int, default=2, help="fits at a time (each gets cores / jobs threads)")
+    parser.add_argument("--work", default="runs/reproduce", help="fit logs, run directories and records")
+    parser.add_argument("--out", default="docs/results", help="where the tables and figures go")
+    parser.add_argument("--refit", action="store_true", help="train again even where a fit is recorded")
+    parser.add_argument("--dry-run", action="store_true", help="print the fit commands, run nothing")
+    args = parser.parse_args(argv)
+    if args.list or args.table is None:
+        for table in TABLES.values():
+            print(f"{table.name}: {table.title}; {len(table.runs)} runs × seeds; {table.budget}")
+        return {}
+    if args.jobs < 1:
+        parser.error(f"--jobs must be ≥ 1, got {args.jobs}")
+    return reproduce(TABLES[args.table], args.seeds, args.jobs, Path(args.work), Path(args.out), args.refit,
+                     args.dry_run)
