@@ -26,12 +26,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shlex
 import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from icprl_lightning.io import write_json_atomic
@@ -39,13 +40,19 @@ from icprl_lightning.io import write_json_atomic
 ALL_CONTEXTS = ("own", "random_labels", "flipped_labels", "other_task")
 
 
+def slug(name: str) -> str:
+    """A run name as a file name (no spaces, commas or '=', which ``--run`` and paths would misread)."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_")
+
+
 @dataclass(frozen=True)
 class Run:
     """One method of a table: its configs (stacked, as repeated ``--config``) and command-line overrides."""
 
-    name: str
+    name: str  # a table row; no '=' or ',' (``icprl evaluate --run NAME=CONFIG:CKPT,CKPT``)
     configs: tuple[str, ...]
     overrides: tuple[str, ...] = ()
+    extra_seeds: tuple[int, ...] = ()  # training seeds this run gets beyond the command's ``--seeds``
 
 
 @dataclass(frozen=True)
@@ -66,23 +73,59 @@ class Table:
     eval_seeds: tuple[int, ...] = (0, 1)
     baselines: tuple[str, ...] = ()
     budget: str = ""  # what one run costs here, for --list
-    extra: dict = field(default_factory=dict)
+    figure: str = ""  # a table-specific figure made from the evaluations (``FIGURES``)
 
 
 DARKROOM_METHODS = (("DPT", "configs/dpt_darkroom.yaml"), ("DP2T", "configs/dp2t_darkroom.yaml"),
                     ("ICPO", "configs/icpo_darkroom.yaml"))
 UNIFORM_STATES = "configs/overlays/uniform_states.yaml"
-LABEL_INFORMATIVE_ICPO = ("--data.init_args.setting.init_args.trajectories_per_task", "400",
-                          "--trainer.max_epochs", "4")
+# 400 contexts per goal (4× the paper-recipe configs' data), 2 epochs = 2,000 steps, held-out rollouts every 250
+LABEL_INFORMATIVE = ("--data.init_args.setting.init_args.trajectories_per_task", "400",
+                     "--trainer.val_check_interval", "250")
+
+
+BETAS, LAMBDAS = ("1", "0.3", "0.1", "0.03"), ("0.25", "0.5", "0.75", "1")
 
 
 def _lambda_beta_runs() -> tuple[Run, ...]:
+    """ICPO on the paper's DarkRoom recipe for every β × λ; the four corners get training seeds 1 and 2 too."""
     runs = []
-    for beta in ("1", "0.3", "0.1", "0.03"):
-        for lam in ("0.25", "0.5", "0.75", "1"):
+    for beta in BETAS:
+        for lam in LAMBDAS:
+            corner = beta in (BETAS[0], BETAS[-1]) and lam in (LAMBDAS[0], LAMBDAS[-1])
             runs.append(Run(f"b{beta}_l{lam}", ("configs/icpo_darkroom.yaml",),
-                            ("--model.init_args.beta", beta, "--model.init_args.lam", lam)))
+                            ("--model.init_args.beta", beta, "--model.init_args.lam", lam),
+                            extra_seeds=(1, 2) if corner else ()))
     return tuple(runs)
+
+
+def lambda_beta_figure(table: Table, out_dir: Path) -> None:
+    """Return vs λ, one line per β, greedy (solid) and sampled (dashed), one panel per context quality."""
+    from matplotlib.figure import Figure
+
+    payloads = {e.suffix: json.loads((out_dir / f"{table.name}{e.suffix}.json").read_text()) for e in table.evaluations}
+    qualities = ("low", "medium", "high")
+    fig = Figure(figsize=(12, 3.4), layout="tight")
+    axes = fig.subplots(1, len(qualities), sharey=True)
+    for ax, quality in zip(axes, qualities, strict=True):
+        for i, beta in enumerate(BETAS):
+            for suffix, style in (("", "-"), ("_sampled", "--")):
+                rows = [payloads[suffix]["results"][f"b{beta}_l{lam}"][quality] for lam in LAMBDAS]
+                ax.errorbar([float(lam) for lam in LAMBDAS], [r["return"] for r in rows],
+                            yerr=[r.get("return_sem", 0.0) for r in rows], color=f"C{i}", linestyle=style,
+                            marker=".", capsize=2,
+                            label=f"β = {beta}, {'greedy' if suffix == '' else 'sampled'}")
+        ax.set_title(f"{quality} contexts", fontsize=9)
+        ax.set_xlabel("λ")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("held-out return")
+    axes[-1].legend(fontsize=6, bbox_to_anchor=(1.02, 1), loc="upper left")
+    fig.suptitle(f"{table.title} (corners: 3 training seeds, mean ± sem over seeds; others: 1 seed, "
+                 "± sem over held-out goals)", fontsize=9)
+    fig.savefig(out_dir / f"{table.name}.png", dpi=120)
+
+
+FIGURES = {"lambda_beta": lambda_beta_figure}
 
 
 TABLES = {t.name: t for t in (
@@ -91,11 +134,13 @@ TABLES = {t.name: t for t in (
           baselines=("DQN from scratch=docs/results/dqn_from_scratch_darkroom.json",),
           budget="≈ 1.5 min per fit on 1 core"),
     Table("darkroom_ipref_uniform", "DarkRoom I-PRL, label-informative recipe (states drawn uniformly)",
-          tuple(Run(n, (c, UNIFORM_STATES), LABEL_INFORMATIVE_ICPO) for n, c in DARKROOM_METHODS),
+          (*(Run(n, (c, UNIFORM_STATES), LABEL_INFORMATIVE) for n, c in DARKROOM_METHODS),
+           Run("ICPO (labels at tau 0.25)", ("configs/icpo_darkroom.yaml", UNIFORM_STATES),
+               (*LABEL_INFORMATIVE, "--data.init_args.setting.init_args.bt_temperature", "0.25"))),
           baselines=("DQN from scratch=docs/results/dqn_from_scratch_darkroom.json",),
-          budget="≈ 12 min per fit on 1 core (4,000 steps of 32 contexts)"),
+          budget="≈ 4–7 min per fit on 1 core (2,000 steps of 32 contexts)"),
     Table("darkroom_lambda_beta", "ICPO on DarkRoom I-PRL: β × λ", _lambda_beta_runs(), contexts=("own",),
-          budget="≈ 1.5 min per fit on 1 core; 16 fits per seed"),
+          budget="≈ 1.5 min per fit on 1 core; 24 fits with --seeds 0", figure="lambda_beta"),
     Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
           evaluations=(Evaluation("", ()),), contexts=("own", "random_labels", "flipped_labels"),
           eval_seeds=(0,), budget="≈ 4 min per fit on 1 core"),
@@ -107,7 +152,7 @@ def fit_command(run: Run, seed: int, root: Path) -> list[str]:
     configs = [arg for config in run.configs for arg in ("--config", config)]
     return ["icprl", "fit", *configs, *run.overrides, "--seed_everything", str(seed),
             "--trainer.logger", "lightning.pytorch.loggers.CSVLogger", "--trainer.logger.init_args.save_dir",
-            str(root), "--trainer.logger.init_args.name", f"{run.name}-seed{seed}",
+            str(root), "--trainer.logger.init_args.name", f"{slug(run.name)}-seed{seed}",
             "--trainer.default_root_dir", str(root)]
 
 
@@ -189,19 +234,20 @@ def _run_fit(command: list[str], log: Path, record: Path, threads: int) -> dict:
 
 
 def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Path, refit: bool = False,
-              dry_run: bool = False) -> dict:
+              dry_run: bool = False, threads: int | None = None) -> dict:
     root = work / table.name
     root.mkdir(parents=True, exist_ok=True)
-    threads = max(1, (os.cpu_count() or 1) // jobs)
+    threads = threads or max(1, (os.cpu_count() or 1) // jobs)
     todo, done = [], {}
+    run_seeds = {run.name: [*seeds, *(s for s in run.extra_seeds if s not in seeds)] for run in table.runs}
     for run in table.runs:
-        for seed in seeds:
-            record = root / f"{run.name}-seed{seed}.json"
+        for seed in run_seeds[run.name]:
+            record = root / f"{slug(run.name)}-seed{seed}.json"
             command = fit_command(run, seed, root / "runs")
             if record.exists() and not refit:
                 done[(run.name, seed)] = json.loads(record.read_text())
             else:
-                todo.append((run.name, seed, command, root / f"{run.name}-seed{seed}.log", record))
+                todo.append((run.name, seed, command, root / f"{slug(run.name)}-seed{seed}.log", record))
     if dry_run:
         for *_, command, _, _ in todo:
             print(shlex.join(command))
@@ -215,7 +261,7 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
             done[key] = future.result()
             print(f"  {key[0]} seed {key[1]}: {done[key]['seconds']} s -> {done[key]['checkpoint']}", flush=True)
     fit_seconds = round(time.time() - start, 1)
-    checkpoints = {run.name: [done[(run.name, s)]["checkpoint"] for s in seeds] for run in table.runs}
+    checkpoints = {run.name: [done[(run.name, s)]["checkpoint"] for s in run_seeds[run.name]] for run in table.runs}
     evaluations = []
     from icprl_lightning.evaluation.command import main as evaluate_main
 
@@ -224,10 +270,13 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
         began = time.time()
         evaluate_main(command[2:])
         evaluations.append({"command": shlex.join(command), "seconds": round(time.time() - began, 1)})
-    curves = {run.name: {str(s): learning_curve(done[(run.name, s)]["checkpoint"]) for s in seeds}
+    if table.figure:
+        FIGURES[table.figure](table, out_dir)
+    curves = {run.name: {str(s): learning_curve(done[(run.name, s)]["checkpoint"]) for s in run_seeds[run.name]}
               for run in table.runs}
     curve_figure(table, curves, out_dir / f"{table.name}_curve.png")
-    summary = {"table": table.name, "training_seeds": seeds, "jobs": jobs, "fit_wall_seconds": fit_seconds,
+    summary = {"table": table.name, "training_seeds": seeds, "jobs": jobs, "threads_per_fit": threads,
+               "fit_wall_seconds": fit_seconds,
                "fits": {f"{n}-seed{s}": r for (n, s), r in sorted(done.items())}, "evaluations": evaluations,
                "learning_curves": curves, "total_wall_seconds": round(time.time() - start, 1)}
     write_json_atomic(out_dir / f"{table.name}_reproduce.json", summary)
@@ -243,6 +292,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--list", action="store_true", help="list the tables and what one fit costs")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
     parser.add_argument("--jobs", type=int, default=2, help="fits at a time (each gets cores / jobs threads)")
+    parser.add_argument("--threads", type=int, help="torch threads per fit (default: cores / jobs)")
     parser.add_argument("--work", default="runs/reproduce", help="fit logs, run directories and records")
     parser.add_argument("--out", default="docs/results", help="where the tables and figures go")
     parser.add_argument("--refit", action="store_true", help="train again even where a fit is recorded")
@@ -255,4 +305,4 @@ def main(argv: list[str] | None = None) -> dict:
     if args.jobs < 1:
         parser.error(f"--jobs must be ≥ 1, got {args.jobs}")
     return reproduce(TABLES[args.table], args.seeds, args.jobs, Path(args.work), Path(args.out), args.refit,
-                     args.dry_run)
+                     args.dry_run, args.threads)

@@ -7,7 +7,7 @@ import json
 import pytest
 from factories import REPO, cli_data_args
 
-from icprl_lightning.reproduce import TABLES, Evaluation, Run, Table, fit_command, main, reproduce
+from icprl_lightning.reproduce import TABLES, Evaluation, Run, Table, fit_command, main, reproduce, slug
 
 
 def test_every_table_names_existing_configs_and_lists(capsys):
@@ -56,3 +56,10 @@ def test_a_tiny_table_trains_two_seeds_evaluates_and_resumes(tmp_path, monkeypat
     # a second call finds both fits recorded and trains nothing
     again = reproduce(table, [0, 1], jobs=2, work=tmp_path / "work", out_dir=tmp_path / "out")
     assert again["fits"] == summary["fits"]
+
+
+def test_run_names_read_back_through_evaluate_and_paths():
+    for table in TABLES.values():
+        for run in table.runs:
+            assert "=" not in run.name and "," not in run.name, run.name  # --run NAME=CONFIG:CKPT,CKPT
+    assert slug("ICPO (labels at tau 0.25)") == "ICPO_labels_at_tau_0.25"
