@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 # Lightning/W&B must never try to reach the network from here; tests disable W&B entirely.
 export WANDB_MODE ?= offline
 
-.PHONY: run test test-fast lint bench clean-data
+.PHONY: run test test-fast lint bench clean-data reproduce
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,10 @@ test: $(STAMP)
 
 test-fast: $(STAMP)
 	WANDB_MODE=disabled $(BIN)/python -m pytest -q -m "not slow"
+
+# make reproduce TABLE=darkroom_ipref: train 3 seeds per method and write docs/results/<TABLE>* (icprl reproduce --list)
+reproduce: $(STAMP)
+	$(BIN)/icprl reproduce $(TABLE)
 
 lint: $(STAMP)
 	$(BIN)/ruff check icprl_lightning tests benchmarks

@@ -18,7 +18,7 @@ def test_icpo_beats_the_behavior_policy_on_held_out_goals(tmp_path):
                             progress=False)
     model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100, n_layer=2, n_embd=64, n_head=4,
                        lr=1e-3)
-    rollout = InContextRolloutCallback(seed=0)
+    rollout = InContextRolloutCallback(seed=0, diagnostics=["flipped_labels", "random_labels", "other_task"])
     # 960 contexts / 32 = 30 steps an epoch: about 400 optimizer steps, validated (and rolled out) once at the end
     trainer = L.Trainer(max_epochs=13, check_val_every_n_epoch=13, limit_val_batches=1, logger=False,
                         enable_checkpointing=False, enable_progress_bar=False, callbacks=[rollout],
@@ -30,3 +30,11 @@ def test_icpo_beats_the_behavior_policy_on_held_out_goals(tmp_path):
         r = results[f"val/darkroom/{quality}"]
         assert np.isfinite(r["return"])
         assert r["return"] > r["behavior_return"], (quality, r)
+        # the diagnostics ran on the same episodes; another goal's context leaves the policy lost
+        assert {f"val/darkroom/{quality}/{d}" for d in ("flipped_labels", "random_labels", "other_task")} <= set(results)
+        assert results[f"val/darkroom/{quality}/other_task"]["return"] < r["return"], (quality, results)
+
+
+def test_rollout_callback_names_a_wrong_diagnostic():
+    with pytest.raises(ValueError, match="diagnostics must be among"):
+        InContextRolloutCallback(diagnostics=["labels_flipped"])
