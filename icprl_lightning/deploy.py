@@ -14,8 +14,9 @@ which query h sees the first h context tokens (the training mask); it never buil
 
 DPT, DP²T and ICPO act with the argmax of T_θ(· | s_h, D) by default (ICRG samples); ``greedy=False``
 samples a_h ~ T_θ(· | s_h, D) as the paper's text writes it. Greedy is their default because ICPO's
-λ < 1 objective leaves probability mass on the non-preferred actions, so the sampled policy is much
-noisier than its mode (docs/RESULTS.md reports both).
+policy is only as sharp as its β makes it: for λ = 1 the optimum is T ∝ exp(A*/(β τ)) (τ the label
+temperature), about softmax(A*) at β = τ = 1, whose samples are noisy where advantages differ by 1–2
+(DarkRoom); a smaller β samples almost as well as the mode (docs/RESULTS.md, "β and λ").
 Continuous actions are the policy mean. Wrong shapes, dtypes or values (labels outside {0, 1}, NaN/inf,
 an empty context, bool or out-of-range actions) raise ``ValueError`` naming the field and what it expects;
 float64 inputs are converted to float32 (``contexts.py`` lists the rules). Calling ``act`` before

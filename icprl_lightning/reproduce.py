@@ -35,6 +35,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.io import write_json_atomic
 
 ALL_CONTEXTS = ("own", "random_labels", "flipped_labels", "other_task")
@@ -133,18 +134,22 @@ TABLES = {t.name: t for t in (
     Table("darkroom_ipref", "DarkRoom I-PRL, the paper's recipe (states follow the preferred action)",
           tuple(Run(n, (c,)) for n, c in DARKROOM_METHODS),
           baselines=("DQN from scratch=docs/results/dqn_from_scratch_darkroom.json",),
-          budget="≈ 1.5 min per fit on 1 core"),
+          budget="≈ 2 min per fit on 1 core of 2 busy ones"),
     Table("darkroom_ipref_uniform", "DarkRoom I-PRL, label-informative recipe (states drawn uniformly)",
-          (*(Run(n, (c, UNIFORM_STATES), LABEL_INFORMATIVE) for n, c in DARKROOM_METHODS),
-           Run("ICPO (labels at tau 0.25)", ("configs/icpo_darkroom.yaml", UNIFORM_STATES),
-               (*LABEL_INFORMATIVE, "--data.init_args.setting.init_args.bt_temperature", "0.25"), seeds=(0,))),
+          tuple(Run(n, (c, UNIFORM_STATES), LABEL_INFORMATIVE) for n, c in DARKROOM_METHODS),
           baselines=("DQN from scratch=docs/results/dqn_from_scratch_darkroom.json",),
-          budget="≈ 4–7 min per fit on 1 core (2,000 steps of 32 contexts)"),
+          budget="≈ 8–11 min per fit on 1 core of 2 busy ones (2,000 steps of 32 contexts)"),
     Table("darkroom_lambda_beta", "ICPO on DarkRoom I-PRL: β × λ", _lambda_beta_runs(), contexts=("own",),
-          budget="≈ 1.5 min per fit on 1 core; 24 fits with --seeds 0", figure="lambda_beta"),
+          eval_seeds=(0,),
+          budget="≈ 2.5 min per fit on 1 core of 2 busy ones; 24 fits with --seeds 0", figure="lambda_beta"),
     Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
           evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS,
-          eval_seeds=(0,), budget="≈ 4 min per fit on 1 core"),
+          eval_seeds=(0,), budget="≈ 2–4 min per fit on 1 core"),
+    Table("bandit_paper_data", "Linear dueling bandits, the paper's 100k pretraining contexts: ICPO vs DTS",
+          (Run("ICPO", ("configs/icpo_bandit.yaml",),
+               ("--data.init_args.setting.init_args.n_train_problems", "50000", "--trainer.max_epochs", "1")),),
+          evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS, eval_seeds=(0,),
+          budget="one epoch of 100k contexts (3,125 steps): ≈ 7 min per fit on 1 core"),
 )}
 
 
@@ -179,8 +184,8 @@ def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -
     """Held-out return vs optimizer steps, one panel per quality, one line per run (each training seed thin)."""
     from matplotlib.figure import Figure
 
-    qualities = list(dict.fromkeys(k for per in curves.values() for c in per.values() for p in c for k in p
-                                   if k != "step"))
+    found = {k for per in curves.values() for c in per.values() for p in c for k in p if k != "step"}
+    qualities = [q for q in QUALITIES if q in found] + sorted(found - set(QUALITIES))
     if not qualities:
         return
     fig = Figure(figsize=(3.6 * len(qualities) + 1.5, 3.2), layout="tight")

@@ -89,3 +89,16 @@ def test_unknown_state_source_and_unsupported_families_are_clear_errors():
         StepPreferences(state_source="uniform").contexts(
             family, family.train_goals[:2], np.array([0, 0]), np.array([0.5]), np.random.default_rng(0), False,
             False, "")
+
+
+def test_overlays_stack_on_every_darkroom_per_step_config(tmp_path):
+    from factories import REPO
+
+    from icprl_lightning.data.config import datamodule_from_config
+
+    overlays = [str(REPO / f"configs/overlays/{name}.yaml") for name in ("uniform_states", "decisive_teacher")]
+    for config in ("icpo_darkroom", "dp2t_darkroom"):
+        dm = datamodule_from_config(str(REPO / f"configs/{config}.yaml"), *overlays, root_dir=str(tmp_path))
+        assert (dm.setting.state_source, dm.setting.bt_temperature) == ("uniform", 0.25)
+    dpt = datamodule_from_config(str(REPO / "configs/dpt_darkroom.yaml"), overlays[0], root_dir=str(tmp_path))
+    assert dpt.setting.state_source == "uniform"

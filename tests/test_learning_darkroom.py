@@ -31,7 +31,8 @@ def test_icpo_beats_the_behavior_policy_on_held_out_goals(tmp_path):
         assert np.isfinite(r["return"])
         assert r["return"] > r["behavior_return"], (quality, r)
         # the diagnostics ran on the same episodes; another goal's context leaves the policy lost
-        assert {f"val/darkroom/{quality}/{d}" for d in ("flipped_labels", "random_labels", "other_task")} <= set(results)
+        diagnosed = {f"val/darkroom/{quality}/{d}" for d in ("flipped_labels", "random_labels", "other_task")}
+        assert diagnosed <= set(results)
         assert results[f"val/darkroom/{quality}/other_task"]["return"] < r["return"], (quality, results)
 
 
