@@ -130,6 +130,12 @@ def cli_data_args(family: str, **kw: Any) -> list[str]:
     return out
 
 
+def tiny_darkroom_args(root: str | Path) -> list[str]:
+    """``--data.init_args...`` of the smallest DarkRoom dataset a CLI run can train and evaluate on, under ``root``."""
+    return cli_data_args("darkroom", root_dir=str(root), trajectories_per_task=3, val_trajectories_per_task=2,
+                         eval_contexts_per_task=1, calibration_episodes=2, reference_episodes=2, progress=False)
+
+
 def config_args(config: str | Path) -> list[str]:
     """``--config`` arguments for a config; an overlay (``configs/paper/``) is stacked on its ``# base:``."""
     path = Path(config)

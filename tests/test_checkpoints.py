@@ -15,7 +15,7 @@ from pathlib import Path
 import lightning as L
 import pytest
 import torch
-from factories import cli_data_args
+from factories import tiny_darkroom_args
 
 from icprl_lightning import StepPreferenceContext, load_agent
 from icprl_lightning.checkpoints import (
@@ -341,9 +341,7 @@ def test_cli_pre_check_passes_a_good_checkpoint_and_leaves_special_values_to_lig
 @pytest.mark.slow
 def test_cli_validates_a_good_checkpoint_end_to_end(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    data = cli_data_args("darkroom", root_dir=str(tmp_path / "data"), trajectories_per_task=3,
-                         val_trajectories_per_task=2, eval_contexts_per_task=1, calibration_episodes=2,
-                         reference_episodes=2, progress=False)
+    data = tiny_darkroom_args(str(tmp_path / "data"))
     args = ["--config", str(REPO / "configs/icpo_darkroom.yaml"), "--trainer.logger", "false",
             "--trainer.default_root_dir", str(tmp_path), *data]
     main(["fit", *args, "--trainer.fast_dev_run", "1"])

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from factories import cli_data_args, config_args
+from factories import config_args, tiny_darkroom_args
 
 from icprl_lightning import load_agent
 from icprl_lightning.cli import main, run_cli
@@ -20,8 +20,7 @@ DARKROOM_CONFIGS = ["configs/icpo_darkroom.yaml", "configs/dp2t_darkroom.yaml", 
 
 def tiny_data_args(root) -> list[str]:
     return ["--trainer.default_root_dir", str(root),
-            *cli_data_args("darkroom", root_dir=str(root), trajectories_per_task=3, val_trajectories_per_task=2,
-                           eval_contexts_per_task=1, calibration_episodes=2, reference_episodes=2, progress=False)]
+            *tiny_darkroom_args(str(root))]
 
 
 @pytest.mark.parametrize("config", DARKROOM_CONFIGS + sorted(glob.glob("configs/paper/*darkroom.yaml")))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from factories import REPO, cli_data_args
+from factories import REPO, tiny_darkroom_args
 
 from icprl_lightning.reproduce import TABLES, Evaluation, Run, Table, fit_command, main, reproduce, slug
 
@@ -30,9 +30,7 @@ def test_fit_command_sets_the_training_seed_after_the_configs(tmp_path):
 @pytest.mark.slow
 def test_a_tiny_table_trains_two_seeds_evaluates_and_resumes(tmp_path, monkeypatch):
     monkeypatch.chdir(REPO)
-    data = cli_data_args("darkroom", root_dir=str(tmp_path / "data"), trajectories_per_task=3,
-                         val_trajectories_per_task=2, eval_contexts_per_task=1, calibration_episodes=2,
-                         reference_episodes=2, progress=False)
+    data = tiny_darkroom_args(str(tmp_path / "data"))
     tiny = ("--trainer.max_epochs", "1", "--trainer.limit_train_batches", "2", "--trainer.limit_val_batches", "1",
             *data)
     table = Table("tiny", "tiny", (Run("ICPO", ("configs/icpo_darkroom.yaml", "configs/overlays/uniform_states.yaml"),

@@ -105,6 +105,16 @@ def over_training_seeds(per_seed: list[dict[str, float]]) -> dict[str, Any]:
     return row
 
 
+def held_out_means(suite, diagnostic: str, checkpoint: str, seeds: list[int], greedy: bool | None) -> dict[str, float]:
+    """One checkpoint's means over held-out tasks on ``suite`` with its context changed as ``diagnostic`` states.
+
+    The random labels of episode seed s are drawn from s, so every checkpoint sees the same contexts.
+    """
+    episodes = rollout_seeds(lambda seed: load_agent(checkpoint, greedy=greedy, seed=seed), suite, seeds,
+                             lambda seed: diagnose_suite(suite, diagnostic, seed))
+    return episode_stats(suite, episodes)
+
+
 def evaluate_rollouts(dm, checkpoints: list[str], seeds: list[int], greedy: bool | None,
                       diagnostics: list[str] = ()) -> tuple[dict[str, dict[str, Any]], dict[str, dict]]:
     """Per quality, the own-context row (mean over held-out tasks, over training seeds as ``over_training_seeds``)
@@ -114,12 +124,7 @@ def evaluate_rollouts(dm, checkpoints: list[str], seeds: list[int], greedy: bool
     diagnosed: dict[str, dict[str, dict[str, Any]]] = {}
     for suite in dm.evaluation_suites():
         for diagnostic in ["own", *applicable(suite.context, diagnostics)]:
-            # the random labels of episode seed s are drawn from s: every checkpoint sees the same contexts
-            def run(checkpoint: str, suite=suite, diagnostic=diagnostic) -> dict[str, float]:
-                return episode_stats(suite, rollout_seeds(
-                    lambda seed: load_agent(checkpoint, greedy=greedy, seed=seed), suite, seeds,
-                    lambda seed: diagnose_suite(suite, diagnostic, seed)))
-            row = over_training_seeds([run(c) for c in checkpoints])
+            row = over_training_seeds([held_out_means(suite, diagnostic, c, seeds, greedy) for c in checkpoints])
             if diagnostic == "own":
                 own[suite.quality] = {**row, "reference": suite.reference}
             else:

@@ -227,10 +227,9 @@ class ReachVectorEnv(gym.vector.VectorEnv):
         ``_reset_hand``; then the joint velocities are zeroed (an arm at rest) and the observation recomputed
         with its previous frame obs[18:36] equal to the current one, as after a reset. The episode's step
         count ``t`` does not change; the puck is back at its post-reset place, unless the arm pushed it on its
-        way there. The mocap ends exactly at the position, the hand ≈ 0.005 from it where the arm reaches
-        (gravity sag of the weld; median over the box 0.0056), but the box is larger than the arm's reach: of
-        uniform draws, ≈ 40% end > 0.02 and ≈ 30% > 0.05 away (up to ≈ 0.15), mostly at y ≳ 0.88 or |x| ≳ 0.4;
-        300 settling steps instead of 50 still leave ≈ 24% > 0.02.
+        way there. The mocap ends exactly at the position and the hand close to it where the arm reaches (the weld's
+        gravity sag), but the box is larger than the arm's reach: draws far out (large y or |x|) leave the hand
+        short of its target, so placed hands are not uniform over the box even though the targets are.
         """
         positions = np.array(positions, dtype=np.float64)
         if positions.shape != (self.num_envs, 3):
