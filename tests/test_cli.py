@@ -69,7 +69,7 @@ def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, mo
                    "--trainer.logger.init_args.save_dir", str(tmp_path / "runs"), *tiny_data_args(root)])
     saved = glob.glob(str(tmp_path / "runs" / "icprl" / "*" / "config.yaml"))
     assert len(saved) == 1
-    assert yaml.safe_load(Path(saved[0]).read_text())["model"]["init_args"]["lam"] == 0.5
+    assert yaml.safe_load(Path(saved[0]).read_text())["model"]["init_args"]["lam"] == 1.0
     ckpt = cli.trainer.checkpoint_callback.last_model_path
     assert ckpt.endswith("last.ckpt")
     assert "val/darkroom/high/return" in cli.trainer.callback_metrics

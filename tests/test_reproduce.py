@@ -7,7 +7,7 @@ import json
 import pytest
 from factories import REPO, tiny_darkroom_args
 
-from icprl_lightning.reproduce import TABLES, Evaluation, Run, Table, fit_command, main, reproduce, slug
+from icprl_lightning.reproduce import TABLES, Evaluation, Run, Table, fit_command, fit_inputs, main, reproduce, slug
 
 
 def test_every_table_names_existing_configs_and_lists(capsys):
@@ -61,3 +61,25 @@ def test_run_names_read_back_through_evaluate_and_paths():
         for run in table.runs:
             assert "=" not in run.name and "," not in run.name, run.name  # --run NAME=CONFIG:CKPT,CKPT
     assert slug("ICPO (labels at tau 0.25)") == "ICPO_labels_at_tau_0.25"
+
+
+def test_a_record_is_reused_only_while_its_command_and_configs_are_unchanged(tmp_path, capsys):
+    config = tmp_path / "method.yaml"
+    config.write_text("model:\n  init_args:\n    beta: 1.0\n")
+    run = Run("ICPO", (str(config),))
+    table = Table("tiny", "tiny", (run,), evaluations=(Evaluation("", ()),))
+    work = tmp_path / "work"
+    command = fit_command(run, 0, work / "tiny" / "runs")
+    (work / "tiny").mkdir(parents=True)
+    record = work / "tiny" / "ICPO-seed0.json"
+    record.write_text(json.dumps({"command": " ".join(command), "inputs_sha256": fit_inputs(run, command),
+                                  "checkpoint": "x/last.ckpt", "seconds": 1.0}))
+    reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
+    assert "icprl fit" not in capsys.readouterr().out  # recorded and unchanged: nothing to train
+    config.write_text("model:\n  init_args:\n    beta: 0.1\n")  # the config changed since the fit
+    reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
+    out = capsys.readouterr().out
+    assert "changed since" in out and "icprl fit" in out
+    record.write_text(json.dumps({"command": " ".join(command), "checkpoint": "x/last.ckpt"}))  # no digest
+    reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
+    assert "icprl fit" in capsys.readouterr().out
