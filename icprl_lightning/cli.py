@@ -208,7 +208,9 @@ def run_cli(args: list[str], run: bool = True) -> ICPRLCLI:
     if wandb is not None and getattr(wandb, "run", None) is not None:
         wandb.finish()
     return ICPRLCLI(L.LightningModule, L.LightningDataModule, subclass_mode_model=True, subclass_mode_data=True,
-                    save_config_callback=SaveConfigToRun, trainer_defaults={"callbacks": [RunDirectory()]},
+                    save_config_callback=SaveConfigToRun,
+                    # the DataModule shards its rows itself under several processes (data/datamodule.py)
+                    trainer_defaults={"callbacks": [RunDirectory()], "use_distributed_sampler": False},
                     args=args, run=run, parser_kwargs={"default_env": False})
 
 

@@ -12,13 +12,15 @@ module's own name (``ICPOModule`` -> ``icpo``, or ``method`` if given), ``dts`` 
 
 The same numbers are printed as a table (one row per source; ``print_table``). Runs every
 ``every_n_epochs`` epochs and at the last one; the sanity check is skipped. Evaluation is seeded, so DTS
-and the behaviour give the same numbers at every validation.
+and the behaviour give the same numbers at every validation. Under several processes the duels run on
+rank 0 and every rank logs their results (``callbacks/distributed.py``).
 """
 
 from __future__ import annotations
 
 import lightning as L
 
+from icprl_lightning.callbacks.distributed import log_broadcast, on_rank_zero
 from icprl_lightning.evaluation.duels import evaluate_duels, method_name, regret_curve, summarize_regret
 from icprl_lightning.evaluation.report import regret_table, show_table
 
@@ -41,6 +43,18 @@ class BanditRegretCallback(L.Callback):
         if trainer.state.fn == "fit" and epoch % self.every_n_epochs != 0 and epoch != trainer.max_epochs:
             return
         options = {} if self.greedy is None else {"greedy": self.greedy}
+        by_source = on_rank_zero(trainer, lambda: self._evaluate(trainer, pl_module, options))
+        self.last_results = {f"val/bandit/{source}/{name}": summary
+                             for source, per_method in by_source.items() for name, summary in per_method.items()}
+        log_broadcast(pl_module, {f"{prefix}/{k}": float(v) for prefix, summary in self.last_results.items()
+                                  for k, v in summary.items()})
+        if self.print_table and trainer.is_global_zero:
+            when = f", epoch {epoch}" if trainer.state.fn == "fit" else ""
+            show_table(regret_table(by_source, f"Weak regret on held-out bandit problems{when}"))
+
+    def _evaluate(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                  options: dict) -> dict[str, dict[str, dict[str, float]]]:
+        """The weak-regret summaries per context source and method."""
         agent = pl_module.make_agent(seed=self.seed, **options)
         method = self.method or method_name(type(pl_module))
         by_source: dict[str, dict[str, dict[str, float]]] = {}
@@ -48,10 +62,4 @@ class BanditRegretCallback(L.Callback):
             duels = evaluate_duels(agent, suite, method, self.seed, self.chunk_size)
             by_source[suite.source] = {name: summarize_regret(regret_curve(suite.expected_rewards, pair))
                                        for name, pair in duels.items()}
-        self.last_results = {f"val/bandit/{source}/{name}": summary
-                             for source, per_method in by_source.items() for name, summary in per_method.items()}
-        pl_module.log_dict({f"{prefix}/{k}": float(v) for prefix, summary in self.last_results.items()
-                            for k, v in summary.items()}, on_epoch=True)
-        if self.print_table and trainer.is_global_zero:
-            when = f", epoch {epoch}" if trainer.state.fn == "fit" else ""
-            show_table(regret_table(by_source, f"Weak regret on held-out bandit problems{when}"))
+        return by_source

@@ -5,7 +5,8 @@ every context quality, each conditioned on another pair of its goal (``heldout_p
 DataModule), and logs ``val/<env>/<quality>/pair_accuracy`` and ``val/<env>/heldout_pair_accuracy`` (all
 qualities). Chance is 0.5; tied returns carry coin-flip labels, so the ceiling is below 1 (the manifest's
 ``eval_statistics`` give the label agreement and tie fraction per quality). The same numbers are printed
-once per epoch, so a run shows them in the terminal, not only in the logger.
+once per epoch, so a run shows them in the terminal, not only in the logger. Under several processes the
+pairs are scored on rank 0 and every rank logs the accuracies (``callbacks/distributed.py``).
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import sys
 
 import lightning as L
 import torch
+
+from icprl_lightning.callbacks.distributed import log_broadcast, on_rank_zero
 
 
 class HeldOutPairAccuracyCallback(L.Callback):
@@ -24,16 +27,22 @@ class HeldOutPairAccuracyCallback(L.Callback):
         if trainer.sanity_checking:
             return
         env = trainer.datamodule.metric_env
-        correct = {}
-        for quality, batch in trainer.datamodule.heldout_pairs().items():
-            batch = {k: v.to(pl_module.device) for k, v in batch.items()}
-            correct[quality] = pl_module.pair_correct(batch).float().cpu()
+        correct = on_rank_zero(trainer, lambda: self._correct(trainer, pl_module))
         results = {f"val/{env}/{q}/pair_accuracy": float(c.mean()) for q, c in correct.items()}
         results[f"val/{env}/heldout_pair_accuracy"] = float(torch.cat(list(correct.values())).mean())
         self.last_results = results
-        pl_module.log_dict(results, on_epoch=True)
+        log_broadcast(pl_module, results)
         if trainer.is_global_zero:
             shown = ", ".join(f"{q} {float(c.mean()):.3f} (n={len(c)})" for q, c in correct.items())
             all_pairs = results[f"val/{env}/heldout_pair_accuracy"]
             print(f"Held-out pair accuracy (epoch {trainer.current_epoch + 1}): {shown}; "
                   f"all {all_pairs:.3f}", file=sys.stderr)
+
+    @staticmethod
+    def _correct(trainer: L.Trainer, pl_module: L.LightningModule) -> dict[str, torch.Tensor]:
+        """Per quality, whether each held-out pair is ordered as its label (on the CPU)."""
+        correct = {}
+        for quality, batch in trainer.datamodule.heldout_pairs().items():
+            batch = {k: v.to(pl_module.device) for k, v in batch.items()}
+            correct[quality] = pl_module.pair_correct(batch).float().cpu()
+        return correct

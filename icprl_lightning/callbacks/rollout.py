@@ -6,7 +6,8 @@ latent return on unseen tasks) and the callback logs, under ``val/<env>/<quality
 ``return_sem`` (mean ± standard error over held-out tasks), ``normalized_return``, ``success`` (where the
 env reports it), and the behavior policy's and optimal policy's returns beside them. The sanity check is
 skipped. The same numbers are printed as a table (``print_table``; ``evaluation.report.results_table``), so a
-run shows its held-out results in the terminal, not only in the logger.
+run shows its held-out results in the terminal, not only in the logger. Under several processes the
+rollouts run on rank 0 and every rank logs its results (``callbacks/distributed.py``).
 
 ``diagnostics`` (``flipped_labels``, ``random_labels``, ``other_task``; ``evaluation.diagnostics``) adds the
 same episodes with the context changed as each states, logged under ``val/<env>/<quality>/<diagnostic>/``:
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import lightning as L
 
+from icprl_lightning.callbacks.distributed import log_broadcast, on_rank_zero
 from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, applicable, diagnose_suite
 from icprl_lightning.evaluation.report import results_table, show_table
 from icprl_lightning.evaluation.rollout import rollout_in_context, summarize
@@ -47,19 +49,27 @@ class InContextRolloutCallback(L.Callback):
         # None: the method's own default (argmax for DPT/DP2T/ICPO, sampling for DIT/ICRG, whose
         # advantage-weighted policies are degenerate at their mode)
         options = {} if self.greedy is None else {"greedy": self.greedy}
-        agent = pl_module.make_agent(seed=self.seed, **options)
-        self.last_results = {}
-        for suite in trainer.datamodule.evaluation_suites():
-            result = summarize(suite, rollout_in_context(agent, suite, seed=self.seed))
-            prefix = f"val/{suite.env_name}/{suite.quality}"
-            self.last_results[prefix] = result
-            pl_module.log_dict({f"{prefix}/{k}": float(v) for k, v in result.items()}, on_epoch=True)
-            for diagnostic in applicable(suite.context, self.diagnostics):
-                changed = diagnose_suite(suite, diagnostic, seed=self.seed)
-                result = summarize(changed, rollout_in_context(agent, changed, seed=self.seed))
-                self.last_results[f"{prefix}/{diagnostic}"] = result
-                pl_module.log_dict({f"{prefix}/{diagnostic}/{k}": float(v) for k, v in result.items()
-                                    if not k.startswith(("behavior", "optimal", "expert"))}, on_epoch=True)
+        self.last_results, logged = on_rank_zero(trainer, lambda: self._evaluate(trainer, pl_module, options))
+        log_broadcast(pl_module, logged)
         if self.print_table and trainer.is_global_zero:
             when = f", epoch {epoch}" if trainer.state.fn == "fit" else ""
             show_table(results_table(self.last_results, f"In-context rollouts on held-out tasks{when}"))
+
+    def _evaluate(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                  options: dict) -> tuple[dict[str, dict[str, float]], dict[str, float]]:
+        """The results per suite (and diagnostic) and the values logged from them."""
+        agent = pl_module.make_agent(seed=self.seed, **options)
+        results: dict[str, dict[str, float]] = {}
+        logged: dict[str, float] = {}
+        for suite in trainer.datamodule.evaluation_suites():
+            result = summarize(suite, rollout_in_context(agent, suite, seed=self.seed))
+            prefix = f"val/{suite.env_name}/{suite.quality}"
+            results[prefix] = result
+            logged.update({f"{prefix}/{k}": float(v) for k, v in result.items()})
+            for diagnostic in applicable(suite.context, self.diagnostics):
+                changed = diagnose_suite(suite, diagnostic, seed=self.seed)
+                result = summarize(changed, rollout_in_context(agent, changed, seed=self.seed))
+                results[f"{prefix}/{diagnostic}"] = result
+                logged.update({f"{prefix}/{diagnostic}/{k}": float(v) for k, v in result.items()
+                               if not k.startswith(("behavior", "optimal", "expert"))})
+        return results, logged

@@ -25,6 +25,14 @@ This module owns what every dataset shares:
 * Batches are drawn a whole batch at a time from the memory-mapped arrays (``data/batches.py``): with
   ``pairs`` a sample also carries another row of the same task, with ``query_labels`` the query states
   and optimal actions of DPT/DP²T.
+* Under several processes (``--trainer.strategy ddp --trainer.devices N``) each rank draws a disjoint
+  shard of every epoch: the rows go through a ``DistributedSampler`` (shuffled by ``PL_GLOBAL_SEED`` and
+  the epoch, so all ranks agree on the permutation) before they are cut into batches. Lightning's own
+  sampler injection would wrap the whole ``BatchSampler`` and shard *batches* of each rank's own shuffle,
+  so the CLI sets ``use_distributed_sampler: false`` and a trainer that leaves it on is refused here. A
+  training epoch drops the last ``len % world_size`` rows (no row twice); validation pads to equal
+  shards, as Lightning does, so every rank runs the same number of steps. One process draws exactly
+  the batches it always did.
 * The evaluation suites of the held-out tasks, built by the setting from the stored evaluation splits.
 """
 
@@ -38,7 +46,7 @@ from typing import Any
 
 import lightning as L
 import torch
-from torch.utils.data import BatchSampler, DataLoader, RandomSampler, SequentialSampler
+from torch.utils.data import BatchSampler, DataLoader, DistributedSampler, RandomSampler, Sampler, SequentialSampler
 
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.data.batches import LABEL_FIELDS, ContextBatches
@@ -55,6 +63,20 @@ from icprl_lightning.data.suites import BanditSuite, EvalSuite
 from icprl_lightning.families.base import Family, TaskFamily
 from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
 from icprl_lightning.validation import HyperparameterError, check_int
+
+
+class EpochBatchSampler(BatchSampler):
+    """A ``BatchSampler`` that passes ``set_epoch`` on to its row sampler.
+
+    The loader is ``DataLoader(sampler=EpochBatchSampler(...), batch_size=None)`` (a whole batch per
+    ``__getitem__``), so Lightning's per-epoch ``set_epoch`` (``_set_sampler_epoch``: the loader's
+    ``sampler`` and ``batch_sampler.sampler``) reaches this object, not the ``DistributedSampler`` inside;
+    without the pass-through every epoch would draw the first epoch's shuffle.
+    """
+
+    def set_epoch(self, epoch: int) -> None:
+        if hasattr(self.sampler, "set_epoch"):
+            self.sampler.set_epoch(epoch)
 
 
 class PreferenceDataModule(L.LightningDataModule):
@@ -216,8 +238,21 @@ class PreferenceDataModule(L.LightningDataModule):
         per_task = self.trajectories_per_task[0 if split == "train" else 1]
         data = ContextBatches(self.load()[split], self.setting.batch_fields(), per_task, self.pairs,
                               self.query_labels, self.setting.pair_fields)
-        base = RandomSampler(data) if shuffle else SequentialSampler(data)
-        return DataLoader(data, sampler=BatchSampler(base, self.batch_size, drop_last=shuffle), batch_size=None)
+        return DataLoader(data, sampler=EpochBatchSampler(self._row_sampler(data, shuffle), self.batch_size,
+                                                          drop_last=shuffle), batch_size=None)
+
+    def _row_sampler(self, data: ContextBatches, shuffle: bool) -> Sampler[int]:
+        """Every row in one process; this rank's shard of them under several (see the module docstring)."""
+        trainer = self.trainer
+        world_size = trainer.world_size if trainer is not None else 1
+        if world_size == 1:
+            return RandomSampler(data) if shuffle else SequentialSampler(data)
+        if trainer._accelerator_connector.use_distributed_sampler:  # no public accessor for the flag
+            raise ValueError("PreferenceDataModule shards its rows itself: set use_distributed_sampler=False on "
+                             "the Trainer (the icprl CLI does), or each rank would also draw only every "
+                             f"{world_size}th batch of its shard")
+        return DistributedSampler(data, num_replicas=world_size, rank=trainer.global_rank, shuffle=shuffle,
+                                  seed=int(os.environ.get("PL_GLOBAL_SEED", 0)), drop_last=shuffle)
 
     def train_dataloader(self) -> DataLoader:
         return self._loader("train", shuffle=True)

@@ -69,8 +69,11 @@ class InContextModule(L.LightningModule):
 
     def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         loss, metrics = self.loss(batch)
-        self.log("val/loss", loss, prog_bar=True)
-        self.log_dict({f"val/{k}": v for k, v in metrics.items()})
+        # sync_dist: under several processes the epoch's value is the batch-weighted mean over every rank's
+        # shard (one all-reduce per metric at the epoch's end), so ModelCheckpoint sees the same val/loss on
+        # each rank; a no-op in one process. Train metrics are per step and stay rank 0's own.
+        self.log("val/loss", loss, prog_bar=True, sync_dist=True)
+        self.log_dict({f"val/{k}": v for k, v in metrics.items()}, sync_dist=True)
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
         return torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
