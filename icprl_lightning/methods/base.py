@@ -14,7 +14,7 @@ from torch import Tensor
 
 from icprl_lightning.contexts import ActionSpec, context_from_batch
 from icprl_lightning.models.policy import InContextPolicy
-from icprl_lightning.validation import check_kind, check_sizes, check_transformer
+from icprl_lightning.validation import check_int, check_kind, check_sizes, check_transformer
 
 
 class InContextModule(L.LightningModule):
@@ -30,11 +30,13 @@ class InContextModule(L.LightningModule):
 
     def __init__(self, context_kind: str, state_dim: int, action_dim: int, discrete: bool, max_context: int,
                  n_layer: int = 3, n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0) -> None:
+                 weight_decay: float = 0.0, queries_per_context: int | None = None) -> None:
         owner = type(self).__name__
         check_kind(owner, "context_kind", context_kind)
         check_sizes(owner, state_dim, action_dim)
         check_transformer(owner, n_layer, n_embd, n_head, dropout, lr, weight_decay, max_context)
+        if queries_per_context is not None:
+            check_int(owner, "queries_per_context", queries_per_context, 1)
         super().__init__()
         self.save_hyperparameters()
         self.context_kind = context_kind
@@ -53,10 +55,18 @@ class InContextModule(L.LightningModule):
     def context(self, batch: dict[str, Tensor], prefix: str = ""):
         return context_from_batch(self.context_kind, batch, prefix)
 
-    @staticmethod
-    def prefix_visible(length: int, device: torch.device) -> Tensor:
-        """Query t of a length-T sequence sees the first t + 1 context tokens: every context size at once."""
-        return torch.arange(1, length + 1, device=device)
+    def query_positions(self, length: int, device: torch.device) -> Tensor:
+        """The query positions a step scores, sorted: all ``length`` of them, or in training
+        ``queries_per_context`` of them drawn without replacement (the same for the whole batch, new each step).
+
+        Query t sees the first t + 1 context tokens, so the drawn positions still cover context sizes 1..H,
+        and the sequence is H + k tokens instead of 2H (``benchmarks/training_throughput.py`` measures the
+        gain). Validation always scores all H, so ``val/loss`` does not depend on k.
+        """
+        k = self.hparams.get("queries_per_context")
+        if k is None or k >= length or not self.training:
+            return torch.arange(length, device=device)
+        return torch.randperm(length, device=device)[:k].sort().values
 
     def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
         raise NotImplementedError

@@ -25,12 +25,13 @@ class SupervisedPretrainingModule(InContextModule):
             raise KeyError(f"{type(self).__name__} trains on optimal-action labels: set "
                            "data.init_args.query_labels: true")
         context = self.context(batch)
-        queries = batch["query_states"]
-        outputs = self.policy(context, queries, self.prefix_visible(queries.shape[1], queries.device))
-        loss = supervised_action_loss(outputs, batch["optimal_actions"], self.action_spec.discrete)
+        positions = self.query_positions(batch["query_states"].shape[1], batch["query_states"].device)
+        queries, labels = batch["query_states"][:, positions], batch["optimal_actions"][:, positions]
+        outputs = self.policy(context, queries, positions + 1)
+        loss = supervised_action_loss(outputs, labels, self.action_spec.discrete)
         metrics = {}
         if self.action_spec.discrete:
-            metrics["action_accuracy"] = (outputs.argmax(-1) == batch["optimal_actions"]).float().mean()
+            metrics["action_accuracy"] = (outputs.argmax(-1) == labels).float().mean()
         return loss, metrics
 
 
@@ -39,9 +40,9 @@ class DPTModule(SupervisedPretrainingModule):
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, n_layer: int = 3,
                  n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0) -> None:
+                 weight_decay: float = 0.0, queries_per_context: int | None = None) -> None:
         super().__init__("reward", state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
-                         dropout, lr, weight_decay)
+                         dropout, lr, weight_decay, queries_per_context)
 
 
 class DP2TModule(SupervisedPretrainingModule):
@@ -49,10 +50,11 @@ class DP2TModule(SupervisedPretrainingModule):
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
                  context_kind: str = "step_preference", n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
-                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0) -> None:
+                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0,
+                 queries_per_context: int | None = None) -> None:
         if context_kind not in PREFERENCE_KINDS:
             raise HyperparameterError(f"DP2TModule: context_kind must be one of {list(PREFERENCE_KINDS)}, got "
                                       f"{context_kind!r} (DP2T conditions on preferences; a reward context makes "
                                       "it DPT, DPTModule)")
         super().__init__(context_kind, state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
-                         dropout, lr, weight_decay)
+                         dropout, lr, weight_decay, queries_per_context)

@@ -9,8 +9,9 @@ No optimal-action labels, no rewards: only the comparisons. Where the scored com
 (``pair_source``):
 
 * ``"other_trajectory"`` (default): comparisons of another trajectory of the same task. Query t sees
-  the first t + 1 context comparisons. The comparison being scored is never in the context, so the
-  model must infer the task from the context rather than copy a label it can see.
+  the first t + 1 context comparisons (all H queries, or ``queries_per_context`` drawn ones in training).
+  The comparison being scored is never in the context, so the model must infer the task from the
+  context rather than copy a label it can see.
 * ``"context"``: the paper's literal form — the comparisons of D itself, each scored with the whole D
   in view (T_θ(a | s_h, D) with D ∋ (s_h, a_h, a'_h, y_h)).
 """
@@ -32,7 +33,8 @@ class ICPOModule(InContextModule):
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, beta: float = 1.0,
                  lam: float = 0.5, pair_source: str = "other_trajectory", lambda_on_preferred: bool = False,
                  squared_distance: bool = False, n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
-                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0) -> None:
+                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0,
+                 queries_per_context: int | None = None) -> None:
         check_choice("ICPOModule", "pair_source", pair_source, PAIR_SOURCES)
         check_positive("ICPOModule", "beta", beta)
         check_nonnegative("ICPOModule", "lam", lam)  # λ = 0 drops the rejected term; λ > 1 is Meta-World's
@@ -43,7 +45,7 @@ class ICPOModule(InContextModule):
                                               f"Gaussian-mean loss), but this data's actions are discrete; got "
                                               f"{key}={value!r}, must be false")
         super().__init__("step_preference", state_dim, action_dim, discrete, max_context, n_layer, n_embd,
-                         n_head, dropout, lr, weight_decay)
+                         n_head, dropout, lr, weight_decay, queries_per_context)
 
     @property
     def needs_pairs(self) -> bool:  # type: ignore[override]
@@ -57,8 +59,9 @@ class ICPOModule(InContextModule):
         if hp.pair_source == "other_trajectory":
             if "pair_states" not in batch:
                 raise KeyError("ICPO with pair_source=other_trajectory needs data.init_args.pairs: true")
-            pairs = self.context(batch, prefix="pair_")
-            visible = self.prefix_visible(t, context.states.device)
+            positions = self.query_positions(t, context.states.device)
+            pairs = self.context(batch, prefix="pair_").map(lambda x: x[:, positions])
+            visible = positions + 1
         else:
             pairs = context
             visible = torch.full((t,), t, device=context.states.device)

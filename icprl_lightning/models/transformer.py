@@ -48,6 +48,19 @@ class KVCache:
             self.values[i][:, :, : self.length] = v[:, :, : self.length]
 
 
+def decode_attention(q: Tensor, k: Tensor, v: Tensor, mask: Tensor) -> Tensor:
+    """softmax(q kᵀ / √d, masked) v for a few query tokens against a long cache, as two batched matmuls.
+
+    The same attention as ``F.scaled_dot_product_attention``; on CPU its fused kernel tiles over query
+    blocks and costs several times more than this for one query token per sequence (an act()), which is
+    bandwidth-bound on reading the cache (``benchmarks/deployment_throughput.py``).
+    """
+    scores = torch.einsum("bhqd,bhkd->bhqk", q, k).mul_(q.shape[-1] ** -0.5)
+    if not bool(mask.all()):
+        scores.masked_fill_(~mask, float("-inf"))
+    return torch.einsum("bhqk,bhkd->bhqd", scores.softmax(-1), v)
+
+
 class SelfAttention(nn.Module):
     def __init__(self, n_embd: int, n_head: int, dropout: float) -> None:
         super().__init__()
@@ -68,9 +81,10 @@ class SelfAttention(nn.Module):
             end = past_length + t
             past[0][:, :, past_length:end] = k
             past[1][:, :, past_length:end] = v
-            k, v = past[0][:, :, :end], past[1][:, :, :end]
-        y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask,
-                                           dropout_p=self.dropout if self.training else 0.0)
+            y = decode_attention(q, past[0][:, :, :end], past[1][:, :, :end], mask)
+        else:
+            y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask,
+                                               dropout_p=self.dropout if self.training else 0.0)
         y = y.transpose(1, 2).contiguous().view(b, t, c)
         return self.resid_drop(self.proj(y)), (k, v)
 
