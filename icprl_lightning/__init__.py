@@ -7,7 +7,8 @@ from icprl_lightning.contexts import (
     TrajectoryPreferenceContext,
 )
 from icprl_lightning.deploy import Agent, load_agent
+from icprl_lightning.online import OnlineAgent
 
 __version__ = "0.1.0"
-__all__ = ["Agent", "RewardContext", "RewardTrajectoryContext", "StepPreferenceContext", "TrajectoryPreferenceContext",
-           "load_agent"]
+__all__ = ["Agent", "OnlineAgent", "RewardContext", "RewardTrajectoryContext", "StepPreferenceContext",
+           "TrajectoryPreferenceContext", "load_agent"]

@@ -9,9 +9,14 @@ that sees the whole context is exactly the last token of the sequence:
 
 * ``forward(context, queries, visible)`` — training: all tokens in one pass, mask as above;
 * ``encode(context)`` — deployment: run the context once and keep every layer's keys and values;
-* ``query(cache, queries)`` — each act(): run only the new query tokens against the cache.
+* ``query(cache, queries)`` — each act(): run only the new query tokens against the cache;
+* ``empty_cache(batch)`` / ``extend(cache, tokens)`` — online deployment: start from no context and
+  append each new context token to the cache in place (it attends to every earlier context token and
+  itself, as in ``encode``), never re-encoding what is already there.
 
-``query(encode(c), q)`` equals ``forward(c, q, visible=[T] * Q)`` (tested).
+``query(encode(c), q)`` equals ``forward(c, q, visible=[T] * Q)``, and ``extend`` token by token from
+``empty_cache`` equals ``encode`` (tested). An empty context is a cache of length 0: a query on it takes
+position 0, as ``forward`` gives a query with ``visible = 0``.
 """
 
 from __future__ import annotations
@@ -177,3 +182,39 @@ class CausalTransformer(nn.Module):
         for block, k, v in zip(self.blocks, cache.keys, cache.values, strict=True):
             x, _ = block(x, mask, past=(k, v), past_length=t)
         return self.ln_f(x)
+
+    def empty_cache(self, batch_size: int, device: torch.device | str | None = None) -> KVCache:
+        """A cache of B empty contexts (length 0), with one query slot, for ``extend`` to grow."""
+        param = next(self.parameters())
+        device = param.device if device is None else torch.device(device)
+        attn = self.blocks[0].attn
+        n_embd = attn.qkv.in_features
+        shape = (batch_size, attn.n_head, 1, n_embd // attn.n_head)  # (B, nh, 1 slot, hs)
+        keys = [torch.zeros(shape, dtype=param.dtype, device=device) for _ in self.blocks]
+        values = [torch.zeros(shape, dtype=param.dtype, device=device) for _ in self.blocks]
+        return KVCache(keys, values, 0)
+
+    def extend(self, cache: KVCache, tokens: Tensor) -> KVCache:
+        """Append context tokens (B, n, D) at the end of the cached context, in place; returns the cache.
+
+        Token i takes position ``cache.length + i`` and attends to the whole cached context, the tokens
+        before it and itself: the keys and values ``encode`` would have computed for the longer context.
+        Buffers grow geometrically (at most to ``max_context`` plus one query slot), so T single-token
+        extends copy the cache O(log T) times, not T times.
+        """
+        b, d = cache.keys[0].shape[0], self.pos.embedding_dim
+        if tokens.dim() != 3 or tokens.shape[0] != b or tokens.shape[2] != d:
+            raise ValueError(f"tokens must have shape [B={b}, n, D={d}], got {list(tokens.shape)}")
+        t, n = cache.length, tokens.shape[1]
+        self._check_length(t + n)
+        capacity = cache.keys[0].shape[2]
+        if capacity < t + n + 1:  # room for the new tokens and one query slot after them
+            target = max(t + n + 1, min(2 * capacity, self.max_context + 1))
+            cache.reserve(target - t)
+        x = self.drop(tokens + self.pos(torch.arange(t, t + n, device=tokens.device)))
+        mask = torch.cat([torch.ones(n, t, dtype=torch.bool, device=tokens.device),
+                          torch.ones(n, n, dtype=torch.bool, device=tokens.device).tril()], dim=1)  # (n, t + n)
+        for block, k, v in zip(self.blocks, cache.keys, cache.values, strict=True):
+            x, _ = block(x, mask, past=(k, v), past_length=t)
+        cache.length = t + n
+        return cache

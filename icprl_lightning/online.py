@@ -1,0 +1,222 @@
+"""Online deployment with preference queries (DESIGN.md: "an online agent appends each answered comparison
+as one token").
+
+The agent starts from an empty (or a small) I-PRL context D^I for B tasks and, at each step h, at its
+current state s_h:
+
+1. proposes a pair (a_h, a'_h) from T_θ(· | s_h, D_{<h}) by its pair rule (``propose``);
+2. an annotator answers y_h ∈ {0, 1} (1 = the first action won) — any callable
+   ``label(states [B, S], first, second) -> labels [B]``;
+3. appends (s_h, a_h, a'_h, y_h) to its context (``observe``): one new token through the transformer into
+   the KV cache (``CausalTransformer.extend``), never re-encoding the earlier comparisons.
+
+    from icprl_lightning.online import OnlineAgent
+    agent = OnlineAgent.load("run/checkpoints/last.ckpt", seed=0)
+    agent.reset(batch_size=B)                          # or agent.reset(initial_context)
+    first, second = agent.propose(obs)                 # obs [B, S]
+    agent.observe(obs, first, second, label(obs, first, second))
+    action = agent.act(obs)                            # as Agent.act, on everything observed so far
+
+Every model whose context is a ``StepPreferenceContext`` deploys online: the I-PRL methods (DP²T, ICPO
+on step preferences) and the dueling-bandit ICPO, whose contexts are step preferences with states of
+shape [B, T, 0] (``data/settings/bandit_duels.py``; pass ``obs = torch.zeros(B, 0)``). Other context
+kinds (reward contexts, T-PRL pairs, reward trajectories) are refused.
+
+After any number of ``observe`` calls the agent's outputs equal those of ``policy.encode`` + ``query``
+on the grown context, and of ``policy.forward`` with the whole context visible (tests/test_online_agent.py).
+With an empty context the query takes position 0, a position training never scores (ICPO queries see
+1..H comparisons), so the first proposal of an empty-start agent is the model's uninformed prior.
+
+Pair rules (``pair_rule``; any callable ``rule(agent, outputs [B, A]) -> (first, second)`` plugs in, e.g.
+an active-query rule):
+
+* ``ActionAndUniform`` (default; the rule of the offline bandit evaluation, ``evaluation/duels.py``): the
+  first action is the agent's own action (argmax or a sample of T_θ for discrete actions, as ``act``; the
+  mean for continuous ones), the second uniform over the *other* discrete actions, or uniform on the
+  action box [-1, 1]^A.
+* ``TopTwo`` (discrete only): the model's two most likely actions, most likely first.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Protocol
+
+import torch
+from torch import Tensor
+
+from icprl_lightning.contexts import StepPreferenceContext, as_tensor
+from icprl_lightning.deploy import Agent, load_agent
+from icprl_lightning.models.policy import InContextPolicy
+
+Pair = tuple[Tensor, Tensor]
+Annotator = Callable[[Tensor, Tensor, Tensor], Tensor]  # label(states, first, second) -> labels in {0, 1}
+
+
+def _column(name: str, x) -> Tensor:
+    """A per-task value [B, ...] (tensor or numpy array) as one context step [B, 1, ...]."""
+    x = as_tensor(name, x, "[B] or [B, A]")
+    if x.dim() == 0:
+        raise ValueError(f"{name} must hold one value per task, shape [B] or [B, A], got a scalar")
+    return x[:, None]
+
+
+class PairRule(Protocol):
+    def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
+        """``outputs`` [B, A]: T_θ's logits (discrete) or means (continuous) at the current states."""
+        ...
+
+
+class ActionAndUniform:
+    """The agent's own action first; the second uniform over the other arms (discrete) or on [-1, 1]^A."""
+
+    def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
+        first = agent.choose(outputs)
+        spec = agent.policy.action_spec
+        if spec.discrete:
+            # A uniform non-zero offset makes the second action uniform over the other n − 1 actions.
+            offset = torch.randint(1, spec.size, first.shape, generator=agent.generator, device=first.device)
+            return first, (first + offset) % spec.size
+        return first, torch.rand(first.shape, generator=agent.generator, device=first.device) * 2 - 1
+
+
+class TopTwo:
+    """The two actions of highest probability under T_θ, the most likely first (discrete actions only)."""
+
+    def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
+        if not agent.policy.action_spec.discrete:
+            raise ValueError("TopTwo needs discrete actions; this model's actions are continuous "
+                             "(use ActionAndUniform or another pair rule)")
+        agent.choose(outputs)  # the same check of finite outputs as act()
+        top = outputs.topk(2, dim=-1).indices
+        return top[:, 0], top[:, 1]
+
+
+class OnlineAgent(Agent):
+    """An ``Agent`` whose context grows by one answered comparison per ``observe`` (module docstring).
+
+    ``context`` is the context observed so far (``StepPreferenceContext``, T ≥ 0 steps); ``cache`` its KV
+    cache, extended in place (with ``use_cache=False`` every output re-runs ``policy.forward`` instead:
+    the slow reference). ``greedy`` and ``seed`` act as in ``Agent``; the seed also drives the pair rule.
+    """
+
+    def __init__(self, policy: InContextPolicy, greedy: bool = True, use_cache: bool = True, seed: int | None = None,
+                 pair_rule: PairRule | None = None) -> None:
+        if policy.context_kind != "step_preference":
+            raise ValueError(f"online deployment appends step-preference comparisons; this model takes "
+                             f"{policy.context_kind!r} contexts")
+        super().__init__(policy, greedy=greedy, use_cache=use_cache, seed=seed)
+        self.pair_rule: PairRule = ActionAndUniform() if pair_rule is None else pair_rule
+
+    @classmethod
+    def from_agent(cls, agent: Agent, pair_rule: PairRule | None = None) -> OnlineAgent:
+        """The same policy, greedy/cache options and random stream as ``agent`` (e.g. from ``load_agent``)."""
+        online = cls(agent.policy, greedy=agent.greedy, use_cache=agent.use_cache, pair_rule=pair_rule)
+        if agent.generator is not None:
+            online.generator = agent.generator
+        return online
+
+    @classmethod
+    def load(cls, checkpoint: str | Path, greedy: bool | None = None, seed: int | None = None,
+             pair_rule: PairRule | None = None, map_location: str | torch.device = "cpu") -> OnlineAgent:
+        """Read a checkpoint as ``load_agent`` does (untrusted, allow-listed, checksummed), then go online."""
+        return cls.from_agent(load_agent(checkpoint, greedy=greedy, seed=seed, map_location=map_location),
+                              pair_rule=pair_rule)
+
+    @property
+    def length(self) -> int:
+        """Comparisons in the context so far."""
+        if self.context is None:
+            raise RuntimeError("call reset(batch_size) or reset(context) first")
+        return self.context.states.shape[1]
+
+    @torch.no_grad()
+    def reset(self, context: StepPreferenceContext | int) -> None:
+        """Start B tasks from an empty context (``context`` = B, an int) or from a given context.
+
+        A given context is validated as by ``Agent.reset`` and encoded at once, so that ``observe`` can
+        extend its cache.
+        """
+        if isinstance(context, bool) or not isinstance(context, int | StepPreferenceContext):
+            raise ValueError(f"reset takes a batch size (int >= 1) or a StepPreferenceContext, got {context!r}")
+        if isinstance(context, StepPreferenceContext):
+            super().reset(context)
+            if self.use_cache:
+                self.cache = self.policy.encode(self.context)
+            return
+        if context < 1:
+            raise ValueError(f"batch_size must be >= 1, got {context}")
+        self.context = self._empty_context(context)
+        self.cache = self.policy.transformer.empty_cache(context, self.device) if self.use_cache else None
+
+    @torch.no_grad()
+    def outputs(self, obs: Tensor) -> Tensor:
+        """T_θ at obs [B, S] given the context so far: logits [B, n] (discrete) or means [B, A] (continuous)."""
+        query = self._check_obs(obs)[:, None, :]  # (B, 1, S)
+        if self.use_cache:
+            return self.policy.query(self.cache, query)[:, 0]
+        visible = torch.tensor([self.length], device=self.device)
+        return self.policy(self.context, query, visible)[:, 0]
+
+    @torch.no_grad()
+    def act(self, obs: Tensor) -> Tensor:
+        """obs [B, S] -> actions [B] (discrete) or [B, A] (continuous), as ``Agent.act`` on the context so far."""
+        return self.choose(self.outputs(obs))
+
+    def choose(self, outputs: Tensor) -> Tensor:
+        """Outputs [B, A] -> actions, as ``act`` does: argmax or a sample (discrete), the mean (continuous)."""
+        return self._choose(outputs)
+
+    @torch.no_grad()
+    def propose(self, obs: Tensor) -> Pair:
+        """The pair (first, second) to ask about at obs [B, S], by ``pair_rule``; each [B] or [B, A]."""
+        return self.pair_rule(self, self.outputs(obs))
+
+    @torch.no_grad()
+    def observe(self, obs: Tensor, first: Tensor, second: Tensor, labels: Tensor) -> None:
+        """Append the answered comparisons (obs [B, S], first, second, labels [B], 1 = first won): one token each.
+
+        The step is validated as one step of a ``StepPreferenceContext`` (a ``ValueError`` names the
+        field); a context already at the model's ``max_context`` is a ``ValueError`` and nothing changes.
+        """
+        obs = self._check_obs(obs)
+        limit = self.policy.transformer.max_context
+        if self.length + 1 > limit:
+            raise ValueError(f"the context already holds {self.length} comparisons, this model's max_context; "
+                             "reset() to start again")
+        step = StepPreferenceContext(obs[:, None], _column("first", first), _column("second", second),
+                                     _column("labels", labels))
+        try:
+            step = step.validate(self.policy.state_dim, self.policy.action_spec)
+        except ValueError as e:
+            raise ValueError(f"observe: {e} (one step: T = 1; first/second are `actions`/`alt_actions`, labels "
+                             "are `preferred`)") from None
+        if step.batch_size != self.context.batch_size:
+            raise ValueError(f"observe: {step.batch_size} comparisons for {self.context.batch_size} tasks")
+        step = step.to(self.device)
+        if self.use_cache:
+            self.policy.transformer.extend(self.cache, self.policy.tokenizer(step))
+        self.context = StepPreferenceContext(*(torch.cat([old, new], dim=1) for old, new in zip(
+            (self.context.states, self.context.actions, self.context.alt_actions, self.context.preferred),
+            (step.states, step.actions, step.alt_actions, step.preferred), strict=True)))
+
+    @torch.no_grad()
+    def step(self, obs: Tensor, annotator: Annotator) -> tuple[Tensor, Tensor, Tensor]:
+        """Propose a pair at obs, label it by ``annotator(obs, first, second)``, observe it; returns all three."""
+        first, second = self.propose(obs)
+        labels = annotator(obs, first, second)
+        self.observe(obs, first, second, labels)
+        return first, second, labels
+
+    def _empty_context(self, batch_size: int) -> StepPreferenceContext:
+        spec, d = self.policy.action_spec, self.device
+        actions = (torch.zeros(batch_size, 0, dtype=torch.int64, device=d) if spec.discrete
+                   else torch.zeros(batch_size, 0, spec.size, device=d))
+        return StepPreferenceContext(torch.zeros(batch_size, 0, self.policy.state_dim, device=d), actions,
+                                     actions.clone(), torch.zeros(batch_size, 0, device=d))
+
+    def _check_obs(self, obs: Tensor) -> Tensor:
+        if self.context is None:
+            raise RuntimeError("call reset(batch_size) or reset(context) before act/propose/observe")
+        return super()._check_obs(obs)
