@@ -2,7 +2,7 @@
 
 Each module may import only from its own layer or the layers below it. And the structural half of
 "reward-free means reward-free": nothing under ``models/`` or ``methods/`` (nor ``deploy.py``, which they
-use) imports a family, an oracle, a setting (generator) or any dataset code — so no path exists by which
+use) imports a family, an oracle, an annotator, a setting (generator) or any dataset code — so no path exists by which
 a model could be handed a goal, a reward of the simulator or A*.
 """
 
@@ -19,9 +19,10 @@ PACKAGE = Path(__file__).resolve().parents[1] / "icprl_lightning"
 LAYERS = [
     ("contexts", "preferences", "io", "metrics", "validation"),   # ground: shared vocabulary, argument checks
     ("families",),                                  # task families, their envs and oracles
+    ("annotators",),                                # who labels a pair (sees the oracle's utilities)
     ("data",),                                      # settings (generators), store, DataModules
     ("models",),                                    # plain nn.Modules
-    ("deploy", "checkpoints"),                      # Agent / load_agent; safe checkpoint files (methods by an
+    ("deploy", "checkpoints", "online"),            # Agent / load_agent; safe checkpoint files (methods by an
                                                     # allow-list of names, imported by importlib, not statically)
     ("methods",),                                   # LightningModules
     ("evaluation",),                                # rollouts and duels through the Agent
@@ -29,8 +30,8 @@ LAYERS = [
     ("baselines",),                                 # SB3 from scratch
     ("cli", "reproduce", "__init__"),               # the commands (reproduce runs `icprl fit` and `evaluate`)
 ]
-REWARD_FREE = ("models", "methods", "deploy")
-FORBIDDEN_FOR_REWARD_FREE = ("families", "data")
+REWARD_FREE = ("models", "methods", "deploy", "online")
+FORBIDDEN_FOR_REWARD_FREE = ("families", "annotators", "data")
 
 
 def _layer(module: str) -> int:

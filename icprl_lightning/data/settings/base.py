@@ -11,6 +11,9 @@
 3. ``eval_<quality>`` splits on the held-out tasks, ``eval_contexts_per_task`` per task and quality;
 4. the held-out references (behavior and optimal/expert returns), measured by the family's oracle.
 
+A labeled setting's manifest ``info`` also records its ``annotator`` (``annotation()``: class path and
+init args), beside each split's label statistics (agreement with the latent ordering, skip/equal counts).
+
 All draws come from one generator seeded by ``family.seed``, in this order: the order is part of a
 dataset's bytes. A setting subclass says how one split's contexts are generated (``contexts``), what a
 training sample serves (``batch_fields``, ``pair_fields``) and how an evaluation split becomes a typed
@@ -26,12 +29,14 @@ from typing import Any
 import numpy as np
 from rich.progress import track
 
+from icprl_lightning.annotators.base import Annotator
+from icprl_lightning.annotators.bradley_terry import BradleyTerryAnnotator
 from icprl_lightning.contexts import context_fields, context_from_batch
 from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.data.suites import EvalSuite
 from icprl_lightning.families.base import QUALITIES, Family, TaskFamily
-from icprl_lightning.validation import check_choice, check_increasing, check_int
+from icprl_lightning.validation import HyperparameterError, check_choice, check_increasing, check_int, check_positive
 
 PRETRAINING = "pretraining"  # name of a setting's extra calibrated policy (T-PRL's 50% policy)
 STATE_SOURCES = ("rollout", "uniform")  # where per-step contexts' states come from (``context_process``)
@@ -47,6 +52,39 @@ def context_process(family: TaskFamily, tasks: np.ndarray, rng: np.random.Genera
     if state_source == "uniform":
         return family.independent_state_rollouts(tasks, rng)
     return family.context_rollouts(tasks, rng)
+
+
+def choose_annotator(owner: str, annotator: Annotator | None, bt_temperature: float) -> Annotator:
+    """A labeled setting's annotator: ``annotator``, or by default Bradley–Terry at ``bt_temperature``.
+
+    ``bt_temperature`` is the default annotator's knob only: changing it beside an ``annotator`` is an
+    error naming both (its default, 1.0, cannot be told apart from not giving it).
+    """
+    check_positive(owner, "bt_temperature", bt_temperature)
+    if annotator is None:
+        return BradleyTerryAnnotator(bt_temperature)
+    if not isinstance(annotator, Annotator):
+        raise HyperparameterError(f"{owner}: annotator must be an Annotator (icprl_lightning.annotators), got "
+                                  f"{type(annotator).__name__}")
+    if bt_temperature != 1.0:
+        raise HyperparameterError(
+            f"{owner}: bt_temperature ({bt_temperature}) and annotator ({type(annotator).__name__}) were both "
+            "given; bt_temperature sets the default Bradley-Terry annotator only: give one of them (for "
+            "Bradley-Terry labels at another temperature: annotator "
+            "{class_path: icprl_lightning.annotators.BradleyTerryAnnotator, init_args: {temperature: ...}})")
+    return annotator
+
+
+def annotator_knobs(annotator: Annotator) -> dict[str, Any]:
+    """What the config (and so the dataset's hash) records of the annotator.
+
+    A Bradley–Terry annotator is recorded as ``bt_temperature``, as before annotators were a choice, so
+    the datasets it makes keep their config and directory; any other as ``annotator: {class_path,
+    init_args}``.
+    """
+    if type(annotator) is BradleyTerryAnnotator:
+        return {"bt_temperature": annotator.temperature}
+    return {"annotator": annotator.config()}
 
 
 def steps(horizon: int, description: str, progress: bool) -> Iterator[int]:
@@ -173,6 +211,10 @@ class MDPSetting(Setting):
         """The setting's own arguments that determine the data (recorded in the manifest)."""
         return {}
 
+    def annotation(self) -> dict[str, Any]:
+        """What the manifest's ``info`` records of who labeled the data (labeled settings: the annotator)."""
+        return {}
+
     def eval_context(self, arrays: dict[str, Any]):
         return context_from_batch(self.kind, arrays)
 
@@ -231,7 +273,8 @@ class MDPSetting(Setting):
                                                 self.reference_episodes, rng)
                 info["test_reference"].update(refs.pop("test_reference"))
                 info.update(refs)
-        info.update(calibration=calibration, train_statistics=train_stats, eval_statistics=eval_stats)
+        info.update(calibration=calibration, train_statistics=train_stats, eval_statistics=eval_stats,
+                    **self.annotation())
         return splits, info
 
     def evaluation_suites(self, family: TaskFamily, data: StoredDataset) -> list[EvalSuite]:

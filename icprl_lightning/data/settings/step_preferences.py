@@ -11,7 +11,10 @@ The knobs are the paper's choices made explicit:
 * ``first_policy``: the policy of one side of every pair — ``"uniform"`` (the paper's DarkRoom recipe)
   or a calibrated policy's name (``"low"``, Meta-World's 20% policy); the other side is the context's
   own quality (training rows: ``train_policy``);
-* ``bt_temperature``: the label temperature (paper: 1; Meta-World's per-step differences need ≈ 0.02);
+* ``annotator``: who labels the pairs (``annotators/``: B-Pref's scripted teachers, a function, an
+  HTTP endpoint, a person); by default the Bradley–Terry oracle above at ``bt_temperature`` (paper: 1;
+  Meta-World's per-step differences need ≈ 0.02). Its EQUAL and SKIP answers are stored as fair coins
+  (``annotators/labels.py``) and counted in the statistics (``skip_count``, ``equal_count``);
 * ``next_state_follows``: which action the trajectory continues with — ``"preferred"`` (the paper's),
   ``"rejected"``, ``"behavior"`` (the behavior policy's proposal, whatever the label) or ``"first"``
   (the ``first_policy`` side). With the paper's choice the state trajectory walks towards the goal
@@ -32,10 +35,20 @@ from typing import Any
 
 import numpy as np
 
-from icprl_lightning.data.settings.base import STATE_SOURCES, MDPSetting, chunks, context_process, steps
+from icprl_lightning.annotators.base import Annotator, StepQueries
+from icprl_lightning.annotators.labels import check_labels, count_labels, resolve_labels
+from icprl_lightning.data.settings.base import (
+    STATE_SOURCES,
+    MDPSetting,
+    annotator_knobs,
+    choose_annotator,
+    chunks,
+    context_process,
+    steps,
+)
 from icprl_lightning.families.base import TaskFamily
-from icprl_lightning.preferences import label_agreement, sample_preferences
-from icprl_lightning.validation import check_choice, check_positive
+from icprl_lightning.preferences import label_agreement
+from icprl_lightning.validation import check_choice
 
 FOLLOW = ("preferred", "rejected", "behavior", "first")
 
@@ -46,20 +59,28 @@ class StepPreferences(MDPSetting):
     kind = "step_preference"
 
     def __init__(self, first_policy: str = "uniform", bt_temperature: float = 1.0,
-                 next_state_follows: str = "preferred", state_source: str = "rollout", **kwargs: Any) -> None:
+                 next_state_follows: str = "preferred", state_source: str = "rollout",
+                 annotator: Annotator | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         owner = type(self).__name__
         check_choice(owner, "first_policy", first_policy, ("uniform", *self.policy_names()))
         check_choice(owner, "next_state_follows", next_state_follows, FOLLOW)
-        check_positive(owner, "bt_temperature", bt_temperature)
+        self.annotator = choose_annotator(owner, annotator, bt_temperature)
         self.state_source = check_choice(owner, "state_source", state_source, STATE_SOURCES)
         self.first_policy = first_policy
-        self.bt_temperature = bt_temperature
         self.next_state_follows = next_state_follows
 
+    @property
+    def bt_temperature(self) -> float | None:
+        """The Bradley–Terry annotator's temperature; None for another annotator."""
+        return annotator_knobs(self.annotator).get("bt_temperature")
+
     def knobs(self) -> dict[str, Any]:
-        return {"first_policy": self.first_policy, "bt_temperature": self.bt_temperature,
+        return {"first_policy": self.first_policy, **annotator_knobs(self.annotator),
                 "next_state_follows": self.next_state_follows, "state_source": self.state_source}
+
+    def annotation(self) -> dict[str, Any]:
+        return {"annotator": self.annotator.config()}
 
     def contexts(self, family: TaskFamily, tasks: np.ndarray, quality: np.ndarray, mixing: np.ndarray,
                  rng: np.random.Generator, evaluation: bool, progress: bool, description: str
@@ -72,6 +93,7 @@ class StepPreferences(MDPSetting):
         optimal = np.empty((n, horizon, *act_shape), dtype=family.action_dtype)
         preferred = np.empty((n, horizon), dtype=np.uint8)
         utility = np.empty((2, n, horizon))
+        answers = {"skip_count": 0, "equal_count": 0}
         second_p = mixing[quality]
         first_p = None if self.first_policy == "uniform" else mixing[self.policy_names().index(self.first_policy)]
         for rows, label in chunks(n, family.max_parallel, description):
@@ -85,13 +107,17 @@ class StepPreferences(MDPSetting):
                     swap = _column(rng.random(m) < 0.5, first.ndim)
                     both = np.stack([np.where(swap, second, first), np.where(swap, first, second)])
                     u = oracle.utility(state, both)  # [2, m]
-                    y = sample_preferences(u[0], u[1], self.bt_temperature, rng)
-                    states[rows, h], pair[:, rows, h], optimal[rows, h] = roll.observations(), both, \
-                        oracle.optimal_actions(state)
+                    obs = roll.observations()
+                    queries = StepQueries(obs, both[0], both[1], u[0], u[1], tasks[rows])
+                    raw = check_labels(self.annotator.label_steps(queries, rng), m, type(self.annotator).__name__)
+                    for key, count in count_labels(raw).items():
+                        answers[key] += count
+                    y = resolve_labels(raw, rng)
+                    states[rows, h], pair[:, rows, h], optimal[rows, h] = obs, both, oracle.optimal_actions(state)
                     preferred[rows, h], utility[:, rows, h] = y, u
                     roll.step(self._next_action(y, both, first, second))
         stats = {"label_agreement": label_agreement(utility[0], utility[1], preferred),
-                 "tie_fraction": float(np.mean(utility[0] == utility[1]))}
+                 "tie_fraction": float(np.mean(utility[0] == utility[1])), **answers}
         arrays = {"states": states, "actions": pair[0], "alt_actions": pair[1], "preferred": preferred}
         arrays.update(oracle.query_labels(tasks, states, optimal, horizon, rng))
         return arrays, stats

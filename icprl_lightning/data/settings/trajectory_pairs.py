@@ -17,7 +17,10 @@ Evaluation rows also roll out an unlabeled behavior trajectory {s_h, a_h} of the
 RewardGen labels when ICRG is deployed (paper, "ICRG Deployment"). Query labels for DP²T come from the
 oracle over the 2H states the pair visited. Knobs: ``train_policy`` (``"cycle"`` through the qualities,
 or ``"pretraining"``: one policy at ``pretraining_target`` of the optimal return, the paper's 50% SAC
-checkpoint on Meta-World) and ``bt_temperature``.
+checkpoint on Meta-World) and ``annotator`` (``annotators/``; by default Bradley–Terry at
+``bt_temperature``, the equation above). An annotator's EQUAL and SKIP answers are stored as fair coins
+(``annotators/labels.py``) and counted in the statistics. ``RewardTrajectories`` stores no label, so it
+takes no annotator (it draws the default labels and drops them, keeping the stream of ``TrajectoryPairs``).
 """
 
 from __future__ import annotations
@@ -27,30 +30,46 @@ from typing import Any
 import numpy as np
 import torch
 
+from icprl_lightning.annotators.base import Annotator, TrajectoryQueries
+from icprl_lightning.annotators.bradley_terry import BradleyTerryAnnotator
+from icprl_lightning.annotators.labels import check_labels, count_labels, resolve_labels
 from icprl_lightning.contexts import RewardTrajectoryContext
 from icprl_lightning.data.batches import other_rows, to_tensor
-from icprl_lightning.data.settings.base import PRETRAINING, MDPSetting, rollout_behavior
+from icprl_lightning.data.settings.base import (
+    PRETRAINING,
+    MDPSetting,
+    annotator_knobs,
+    choose_annotator,
+    rollout_behavior,
+)
 from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.families.base import QUALITIES, TaskFamily
-from icprl_lightning.preferences import label_agreement, sample_preferences
-from icprl_lightning.validation import check_interval, check_positive
+from icprl_lightning.preferences import label_agreement
+from icprl_lightning.validation import HyperparameterError, check_interval
 
 PAIR_FIELDS = ("states_a", "actions_a", "states_b", "actions_b", "preferred")
 LABELED_FIELDS = ("states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b")
 
 
 def label_trajectory_pairs(states: np.ndarray, actions: np.ndarray, rewards: np.ndarray, n: int,
-                           bt_temperature: float, rng: np.random.Generator, behavior: bool = False
+                           annotator: Annotator | float, rng: np.random.Generator, behavior: bool = False,
+                           tasks: np.ndarray | None = None
                            ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, float]]:
     """Split rollouts [kN, H, ...] (rows ξ_a, then ξ_b, then the behavior trajectories) into T-PRL pairs.
 
-    Returns ``(arrays, rewards, stats)``: the reward-free context arrays (``PAIR_FIELDS``, plus
-    ``behavior_states`` and ``behavior_actions`` when ``behavior``), the per-step latent rewards of each
-    trajectory (oracle only) and the label statistics (agreement with the true return ordering, tie
-    fraction, mean return).
+    ``annotator`` labels the pairs (a number: Bradley–Terry at that temperature); ``tasks`` [n, ...] are
+    the pairs' tasks, shown to it. Returns ``(arrays, rewards, stats)``: the reward-free context arrays
+    (``PAIR_FIELDS``, plus ``behavior_states`` and ``behavior_actions`` when ``behavior``), the per-step
+    latent rewards of each trajectory (oracle only) and the label statistics (agreement of the stored
+    labels with the true return ordering, tie fraction, mean return, skip and equal counts).
     """
+    if not isinstance(annotator, Annotator):
+        annotator = BradleyTerryAnnotator(annotator)
     ret_a, ret_b = rewards[:n].sum(1), rewards[n:2 * n].sum(1)
-    preferred = sample_preferences(ret_a, ret_b, bt_temperature, rng)
+    queries = TrajectoryQueries(states[:n], actions[:n], rewards[:n], states[n:2 * n], actions[n:2 * n],
+                                rewards[n:2 * n], tasks)
+    answers = check_labels(annotator.label_trajectories(queries, rng), n, type(annotator).__name__)
+    preferred = resolve_labels(answers, rng)
     arrays = {"states_a": states[:n], "actions_a": actions[:n], "states_b": states[n:2 * n],
               "actions_b": actions[n:2 * n], "preferred": preferred}
     oracle = {"rewards_a": rewards[:n], "rewards_b": rewards[n:2 * n]}
@@ -59,7 +78,7 @@ def label_trajectory_pairs(states: np.ndarray, actions: np.ndarray, rewards: np.
         oracle["behavior_rewards"] = rewards[2 * n:]
     stats = {"label_agreement": label_agreement(ret_a, ret_b, preferred),
              "tie_fraction": float(np.mean(ret_a == ret_b)),
-             "mean_return": float(np.concatenate([ret_a, ret_b]).mean())}
+             "mean_return": float(np.concatenate([ret_a, ret_b]).mean()), **count_labels(answers)}
     return arrays, oracle, stats
 
 
@@ -68,12 +87,16 @@ class TrajectoryPairs(MDPSetting):
 
     kind = "trajectory_preference"
 
+    stores_labels = True  # False: the kind keeps the true rewards instead (``RewardTrajectories``)
+
     def __init__(self, bt_temperature: float = 1.0, pretraining_target: float = 0.5,
-                 trajectories_per_task: int = 60, **kwargs: Any) -> None:
+                 trajectories_per_task: int = 60, annotator: Annotator | None = None, **kwargs: Any) -> None:
         owner = type(self).__name__
-        check_positive(owner, "bt_temperature", bt_temperature)
+        if annotator is not None and not self.stores_labels:
+            raise HyperparameterError(f"{owner}: annotator has no effect here: this setting stores the true "
+                                      f"rewards, not labels (got {type(annotator).__name__})")
+        self.annotator = choose_annotator(owner, annotator, bt_temperature)
         check_interval(owner, "pretraining_target", pretraining_target, 0.0, 1.0, closed="neither")
-        self.bt_temperature = bt_temperature
         self.pretraining_target = pretraining_target
         super().__init__(trajectories_per_task=trajectories_per_task, **kwargs)
 
@@ -84,8 +107,16 @@ class TrajectoryPairs(MDPSetting):
     def policy_names(self) -> tuple[str, ...]:
         return (*QUALITIES, PRETRAINING)
 
+    @property
+    def bt_temperature(self) -> float | None:
+        """The Bradley–Terry annotator's temperature; None for another annotator."""
+        return annotator_knobs(self.annotator).get("bt_temperature")
+
+    def annotation(self) -> dict[str, Any]:
+        return {"annotator": self.annotator.config()} if self.stores_labels else {}
+
     def knobs(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"bt_temperature": self.bt_temperature}
+        out: dict[str, Any] = annotator_knobs(self.annotator)
         if self.train_policy == PRETRAINING:
             out["pretraining_target"] = self.pretraining_target
         return out
@@ -108,7 +139,7 @@ class TrajectoryPairs(MDPSetting):
         roll = rollout_behavior(family, np.tile(tasks, (k, *[1] * (tasks.ndim - 1))), np.tile(mixing[quality], k),
                                 rng, episodes=True, progress=progress, description=description)
         arrays, rewards, stats = label_trajectory_pairs(roll["states"], roll["actions"], roll["rewards"], n,
-                                                        self.bt_temperature, rng, behavior=evaluation)
+                                                        self.annotator, rng, behavior=evaluation, tasks=tasks)
         visited = np.concatenate([roll["states"][:n], roll["states"][n:2 * n]], axis=1)  # ξ_a ++ ξ_b in time
         optimal = np.concatenate([roll["optimal"][:n], roll["optimal"][n:2 * n]], axis=1)
         arrays = self.stored(arrays, rewards)
@@ -136,6 +167,7 @@ class RewardTrajectories(TrajectoryPairs):
     """The same trajectories as ``TrajectoryPairs`` with their true rewards instead of labels (DIT)."""
 
     kind = "reward_trajectory"
+    stores_labels = False
 
     def batch_fields(self) -> tuple[str, ...]:
         return LABELED_FIELDS
