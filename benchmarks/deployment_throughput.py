@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 
 import numpy as np
@@ -85,7 +86,7 @@ def main() -> None:
                 references[ref_size] = dpt_reference.deploy_env_steps_per_second(layers, width, len(goals))
             results[name]["dpt_reference"] = round(references[ref_size])
             results[name]["kv_cache_vs_reference"] = round(cached / references[ref_size], 1)
-        print(f"{name}: {results[name]}", flush=True)
+        print(f"{name}: {results[name]}", file=sys.stderr, flush=True)
     print(json.dumps({"benchmark": "deployment_env_steps_per_second", "tasks": len(goals),
                       "horizon": fam.horizon, "torch_threads": torch.get_num_threads(),
                       "reference": "DPT DarkRoom evaluation (benchmarks/dpt_reference.py)" if reference else

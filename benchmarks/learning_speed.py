@@ -82,7 +82,7 @@ def main() -> None:
                              "reached_after_train_seconds": hit and hit["train_seconds"],
                              "best_medium_return": max((p["medium_return"] for p in curve), default=None),
                              "wall_seconds": round(time.perf_counter() - began, 1), "curve": curve}
-            print(f"{name}: {({k: v for k, v in results[name].items() if k != 'curve'})}", flush=True)
+            print(f"{name}: {({k: v for k, v in results[name].items() if k != 'curve'})}", file=sys.stderr, flush=True)
     print(json.dumps({"benchmark": "learning_speed", "config": "configs/icpo_darkroom.yaml", "seed": 0,
                       "target_medium_return": args.target, "max_steps": args.max_steps, "threads": args.threads,
                       "results": results}, indent=2))

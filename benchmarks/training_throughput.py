@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 
 import torch
@@ -119,7 +120,7 @@ def main() -> None:
             if "dpt_reference" in row:
                 row[name_of(variant)]["vs_reference"] = round(
                     row[name_of(variant)]["samples_per_s"] / row["dpt_reference"]["samples_per_s"], 2)
-            print(f"{name} {name_of(variant)}: {row[name_of(variant)]}", flush=True)
+            print(f"{name} {name_of(variant)}: {row[name_of(variant)]}", file=sys.stderr, flush=True)
         results[name] = row
     print(json.dumps({"benchmark": "training_samples_per_second", "method": "ICPOModule", "context_length": H,
                       "torch_threads": torch.get_num_threads(),
