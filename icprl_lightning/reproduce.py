@@ -90,6 +90,15 @@ LABEL_INFORMATIVE = ("--data.init_args.setting.init_args.trajectories_per_task",
 
 
 BETAS, LAMBDAS = ("1", "0.3", "0.1", "0.03"), ("0.25", "0.5", "0.75", "1")
+MISTAKE_RATES = ("0", "0.1", "0.2", "0.3")
+
+
+def teacher(epsilon: str) -> tuple[str, ...]:
+    """Overrides: B-Pref's scripted teacher labels the pretraining data, rationality 1 (the family's Bradley–Terry
+    temperature), mistake rate ``epsilon``."""
+    key = "--data.init_args.setting.init_args.annotator"
+    return (key, "icprl_lightning.annotators.ScriptedTeacher", f"{key}.init_args.beta", "1.0",
+            f"{key}.init_args.epsilon", epsilon)
 
 
 def _lambda_beta_runs() -> tuple[Run, ...]:
@@ -131,7 +140,31 @@ def lambda_beta_figure(table: Table, out_dir: Path) -> None:
     fig.savefig(out_dir / f"{table.name}.png", dpi=120)
 
 
-FIGURES = {"lambda_beta": lambda_beta_figure}
+def teacher_noise_figure(table: Table, out_dir: Path) -> None:
+    """Final weak regret vs the teacher's mistake rate, one line per held-out context source, DTS dashed."""
+    from matplotlib.figure import Figure
+
+    results = json.loads((out_dir / f"{table.name}.json").read_text())["results"]
+    sources = list(results[f"ICPO eps{MISTAKE_RATES[0]}"])
+    fig = Figure(figsize=(5.5, 3.6), layout="tight")
+    ax = fig.subplots()
+    eps = [float(e) for e in MISTAKE_RATES]
+    for i, source in enumerate(sources):
+        rows = [results[f"ICPO eps{e}"][source] for e in MISTAKE_RATES]
+        ax.errorbar(eps, [r["weak_regret"] for r in rows], yerr=[r.get("weak_regret_sem", 0.0) for r in rows],
+                    color=f"C{i}", marker=".", capsize=2, label=f"ICPO, {source} contexts")
+        if "dts" in results and source in results["dts"]:
+            ax.axhline(results["dts"][source]["weak_regret"], color=f"C{i}", linestyle="--", linewidth=0.8,
+                       label=f"DTS, {source} contexts")
+    ax.set_xlabel("teacher's mistake rate ε (pretraining labels)")
+    ax.set_ylabel("weak regret after the whole context")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6)
+    ax.set_title(f"{table.title} (3 training seeds, mean ± sem)", fontsize=8)
+    fig.savefig(out_dir / f"{table.name}_vs_noise.png", dpi=120)
+
+
+FIGURES = {"lambda_beta": lambda_beta_figure, "teacher_noise": teacher_noise_figure}
 
 
 TABLES = {t.name: t for t in (
@@ -152,6 +185,11 @@ TABLES = {t.name: t for t in (
     Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
           evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS,
           eval_seeds=(0,), budget="≈ 2–4 min per fit on 1 core"),
+    Table("bandit_teacher_noise",
+          "Linear dueling bandits: ICPO pretrained on a scripted teacher's labels (mistake rate ε)",
+          tuple(Run(f"ICPO eps{e}", ("configs/icpo_bandit.yaml",), teacher(e)) for e in MISTAKE_RATES),
+          evaluations=(Evaluation("", ()),), contexts=("own", "flipped_labels"), eval_seeds=(0,),
+          budget="≈ 2 min per fit on 1 core; 12 fits", figure="teacher_noise"),
     Table("bandit_paper_data", "Linear dueling bandits, the paper's 100k pretraining contexts: ICPO vs DTS",
           (Run("ICPO", ("configs/icpo_bandit.yaml",),
                ("--data.init_args.setting.init_args.n_train_problems", "50000", "--trainer.max_epochs", "1")),),

@@ -387,3 +387,29 @@ def test_a_callable_annotator_is_named_by_its_import_path_in_yaml(tmp_path, monk
     cli = run_cli(["--config", str(REPO / "configs/icpo_darkroom.yaml"), "--config", str(overlay),
                    "--trainer.default_root_dir", str(tmp_path)], run=False)
     assert cli.datamodule.setting.annotator.fn.__name__ == "closer_first"
+
+
+def test_a_bandit_teacher_relabels_pretraining_duels_only(tmp_path):
+    """BanditDuels(annotator=...): train/val labels from the teacher, held-out contexts unchanged, recorded."""
+    from factories import bandit_data
+
+    from icprl_lightning.annotators import ScriptedTeacher
+
+    tiny = dict(n_train_problems=40, contexts_per_problem=2, n_val_problems=8, n_eval_problems=10, horizon=20,
+                progress=False)
+    clean = bandit_data(data_dir=str(tmp_path / "clean"), **tiny)
+    noisy = bandit_data(data_dir=str(tmp_path / "noisy"), annotator=ScriptedTeacher(beta=math.inf, epsilon=0.3),
+                        **tiny)
+    for dm in (clean, noisy):
+        dm.prepare_data()
+    a, b = clean.load(), noisy.load()
+    assert "annotator" not in clean.setting.config()  # the default dataset's config (and hash) is unchanged
+    for split in ("eval_uniform", "eval_dirichlet", "eval_dts"):
+        assert np.array_equal(a[split]["preferred"], b[split]["preferred"])
+    assert np.array_equal(a["train"]["actions"], b["train"]["actions"])  # same duels, new labels
+    info = b.manifest["info"]
+    assert info["annotator"]["class_path"].endswith("ScriptedTeacher")
+    assert info["annotator"]["init_args"]["epsilon"] == 0.3
+    # a deterministic teacher that errs 30% of the time agrees with the reward order on ≈ 70% of duels
+    assert 0.6 < info["label_agreement"]["train"] < 0.8
+    assert info["label_agreement"]["eval_uniform"] == a.manifest["info"]["label_agreement"]["eval_uniform"]

@@ -17,6 +17,12 @@ Splits written to disk (see ``data/store.py``):
   behaviour policy plays after h comparisons, i.e. its duel h + 1) and ``expected_rewards`` [n, A]. These
   splits are read only by ``bandit_suites`` (the evaluation); the dataloaders never touch them.
 
+``annotator`` (``icprl_lightning.annotators``, e.g. B-Pref's ``ScriptedTeacher``) relabels the
+*pretraining* duels (train and val): it sees each duel's two arms and their expected rewards as utilities
+(states are empty), and its EQUAL / SKIP answers become fair coins, as in the MDP settings. The held-out
+contexts keep the family's own Bradley–Terry labels, so a model trained on a noisy teacher is evaluated on
+the same contexts as one trained on clean labels. Without an annotator nothing changes (same bytes).
+
 Problem parameters come from independent seed streams per split, so the held-out problems do not change
 with the training-set size. The manifest records each split's label agreement (the share of BT labels
 that agree with the true reward order): with θ, φ ~ N(0, I/d) reward gaps are small and it is only
@@ -31,6 +37,8 @@ import numpy as np
 import torch
 from rich.progress import track
 
+from icprl_lightning.annotators.base import Annotator, StepQueries
+from icprl_lightning.annotators.labels import check_labels, count_labels, resolve_labels
 from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.settings.base import Setting
@@ -63,7 +71,12 @@ class BanditDuels(Setting):
 
     def __init__(self, n_train_problems: int = 2000, contexts_per_problem: int = 2, n_val_problems: int = 64,
                  val_contexts_per_problem: int = 2, n_eval_problems: int = 200,
-                 eval_sources: tuple[str, ...] = EVAL_SOURCES) -> None:
+                 eval_sources: tuple[str, ...] = EVAL_SOURCES, annotator: Annotator | None = None) -> None:
+        if annotator is not None and not isinstance(annotator, Annotator):
+            raise HyperparameterError(f"BanditDuels: annotator must be an Annotator (icprl_lightning.annotators), "
+                                      f"got {type(annotator).__name__}")
+        self.annotator = annotator
+        self.answers = {"skip_count": 0, "equal_count": 0}  # the annotator's undecided answers (pretraining)
         unknown = set(eval_sources) - set(EVAL_SOURCES)
         if unknown:
             raise HyperparameterError(f"BanditDuels: eval_sources must be a subset of {list(EVAL_SOURCES)}, "
@@ -83,7 +96,8 @@ class BanditDuels(Setting):
         return {"setting": type(self).__name__, "context_kind": self.kind,
                 "n_train_problems": self.n_problems["train"], "contexts_per_problem": self.per_task[0],
                 "n_val_problems": self.n_problems["val"], "val_contexts_per_problem": self.per_task[1],
-                "n_eval_problems": self.n_problems["test"], "eval_sources": list(self.eval_sources)}
+                "n_eval_problems": self.n_problems["test"], "eval_sources": list(self.eval_sources),
+                **({} if self.annotator is None else {"annotator": self.annotator.config()})}
 
     # ---- generation --------------------------------------------------------------------------------
     def _pretraining_split(self, family: LinearDuelingBanditFamily, theta: np.ndarray, per_problem: int,
@@ -96,6 +110,8 @@ class BanditDuels(Setting):
         for start in track(starts, description=description, disable=not progress, transient=True):
             rows = theta[task_index[start:start + _CHUNK]]
             context = family.uniform_pairs_context(rows, rng)
+            if self.annotator is not None:
+                context["preferred"] = self._annotate(family, rows, context, rng)
             chunks.append(context)
             agree.append(self._agreement(family, rows, context))
         context = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
@@ -103,6 +119,21 @@ class BanditDuels(Setting):
         arrays["task_index"] = task_index
         rates, weights = zip(*agree, strict=True)
         return arrays, float(np.average(rates, weights=weights))
+
+    def _annotate(self, family: LinearDuelingBanditFamily, theta: np.ndarray, context: dict[str, np.ndarray],
+                  rng: np.random.Generator) -> np.ndarray:
+        """The annotator's labels [n, H] for the context's duels (EQUAL / SKIP resolved to coins, counted)."""
+        first, second = context["arms_first"], context["arms_second"]
+        rewards = family.expected_rewards(theta)
+        n, h = first.shape
+        queries = StepQueries(np.zeros((n * h, 0), dtype=np.float32), first.reshape(-1), second.reshape(-1),
+                              np.take_along_axis(rewards, first, axis=1).reshape(-1),
+                              np.take_along_axis(rewards, second, axis=1).reshape(-1),
+                              np.repeat(theta, h, axis=0))
+        raw = check_labels(self.annotator.label_steps(queries, rng), n * h, type(self.annotator).__name__)
+        for key, count in count_labels(raw).items():
+            self.answers[key] += count
+        return resolve_labels(raw, rng).reshape(n, h)
 
     def _agreement(self, family: LinearDuelingBanditFamily, theta: np.ndarray,
                    context: dict[str, np.ndarray]) -> tuple[float, int]:
@@ -153,6 +184,11 @@ class BanditDuels(Setting):
         info = {"label_agreement": agreement,
                 "label_note": "share of BT labels agreeing with the true reward order (ties, i.e. DTS "
                               "self-duels, left out); 0.5 would be pure noise"}
+        if self.annotator is not None:
+            info["annotator"] = self.annotator.config()
+            info["annotator_answers"] = dict(self.answers)
+            info["label_note"] = ("share of stored labels agreeing with the true reward order; train and val "
+                                  "labeled by the annotator, the eval_* splits by the family's Bradley-Terry model")
         return splits, info
 
     # ---- evaluation --------------------------------------------------------------------------------
