@@ -160,7 +160,7 @@ def teacher_noise_figure(table: Table, out_dir: Path) -> None:
     ax.set_ylabel("weak regret after the whole context")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6)
-    ax.set_title(f"{table.title} (3 training seeds, mean ± sem)", fontsize=8)
+    ax.set_title("ICPO pretrained on a scripted teacher's labels (3 training seeds, mean ± sem)", fontsize=8)
     fig.savefig(out_dir / f"{table.name}_vs_noise.png", dpi=120)
 
 
