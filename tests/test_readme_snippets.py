@@ -29,7 +29,8 @@ def test_the_online_snippet_runs_on_a_trained_bandit_checkpoint(tmp_path, monkey
     data = cli_data_args("bandit", root_dir=str(tmp_path / "data"), n_train_problems=8, n_val_problems=2,
                          n_eval_problems=4, batch_size=4, progress=False)
     cli = run_cli(["fit", "--config", str(REPO / "configs/icpo_bandit.yaml"), "--trainer.logger", "false",
-                   "--trainer.max_epochs", "1", "--trainer.limit_train_batches", "2", "--trainer.limit_val_batches", "1",
+                   "--trainer.max_epochs", "1", "--trainer.limit_train_batches", "2",
+                   "--trainer.limit_val_batches", "1",
                    "--trainer.callbacks", "[]", "--trainer.default_root_dir", str(tmp_path), *data])
     assert cli.trainer.global_step == 2
     checkpoint = str(next(tmp_path.rglob("*.ckpt")))  # Lightning's default checkpoint callback
