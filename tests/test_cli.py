@@ -23,6 +23,7 @@ def tiny_data_args(root) -> list[str]:
             *tiny_darkroom_args(str(root))]
 
 
+@pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier
 @pytest.mark.parametrize("config", DARKROOM_CONFIGS + sorted(glob.glob("configs/paper/*darkroom.yaml")))
 def test_config_runs_under_fast_dev_run(config, tmp_path):
     cli = run_cli(["fit", *config_args(config), "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
@@ -38,6 +39,7 @@ def test_overrides_reach_the_model(tmp_path):
     assert cli.model.hparams.lr == 0.01 and cli.model.hparams.lam == 0.3
 
 
+@pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier
 def test_unknown_key_is_rejected_by_name(tmp_path):
     bad = tmp_path / "bad.yaml"
     cfg = yaml.safe_load(Path("configs/icpo_darkroom.yaml").read_text())
@@ -49,6 +51,7 @@ def test_unknown_key_is_rejected_by_name(tmp_path):
     assert "lamda" in proc.stderr
 
 
+@pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier
 def test_print_config_shows_linked_model_and_data():
     proc = subprocess.run([sys.executable, "-m", "icprl_lightning.cli", "fit", "--config",
                            "configs/icpo_darkroom.yaml", "--print_config"], capture_output=True, text=True,
@@ -59,6 +62,7 @@ def test_print_config_shows_linked_model_and_data():
     assert printed["data"]["init_args"]["setting"]["init_args"]["bt_temperature"] == 1.0
 
 
+@pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier
 def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     root = tmp_path / "data"

@@ -162,6 +162,7 @@ def test_evaluation_suites_report_success_and_normalize_per_goal(ipref):
     assert result["behavior_return"] == suite.reference["behavior_return"]
 
 
+@pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier
 @pytest.mark.parametrize("config", ["configs/icpo_metaworld.yaml", "configs/dp2t_metaworld.yaml",
                                     "configs/dpt_metaworld.yaml", *sorted(glob.glob("configs/paper/*metaworld.yaml"))])
 def test_config_runs_under_fast_dev_run(config, root):

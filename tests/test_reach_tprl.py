@@ -277,6 +277,7 @@ def test_paper_configs_have_the_paper_architecture_and_data():
         assert args["lr"] == 3e-4
 
 
+@pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier
 @pytest.mark.parametrize("name", CONFIGS)
 def test_paper_config_runs_under_fast_dev_run(name, root, reward_gen_ckpt, tmp_path):
     stem = name if name.endswith("_tprl") else f"{name}_tprl"

@@ -312,6 +312,7 @@ def _child_main(root, counter, log_file, barrier, out):
         f.write(_prepare_in_child(root, counter, log_file, barrier))
 
 
+@pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier
 def test_two_processes_preparing_one_dataset_generate_it_once(tmp_path):
     import multiprocessing as mp
 
@@ -334,6 +335,7 @@ def test_two_processes_preparing_one_dataset_generate_it_once(tmp_path):
     assert sorted(p.name for p in root.iterdir()) == [Path(results[0]["path"]).name]  # no lock, staging or trash
 
 
+@pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier
 def test_a_live_writer_is_waited_for_not_deleted(tmp_path, caplog):
     """Another process mid-write holds the lock: a second writer waits (with a log line), the first finishes."""
     script = textwrap.dedent(f"""
