@@ -51,7 +51,7 @@ from icprl_lightning.deploy import Agent, load_agent
 from icprl_lightning.models.policy import InContextPolicy
 
 Pair = tuple[Tensor, Tensor]
-Annotator = Callable[[Tensor, Tensor, Tensor], Tensor]  # label(states, first, second) -> labels in {0, 1}
+Labeler = Callable[[Tensor, Tensor, Tensor], Tensor]  # label(states, first, second) -> labels in {0, 1}
 
 
 def _column(name: str, x) -> Tensor:
@@ -202,10 +202,10 @@ class OnlineAgent(Agent):
             (step.states, step.actions, step.alt_actions, step.preferred), strict=True)))
 
     @torch.no_grad()
-    def step(self, obs: Tensor, annotator: Annotator) -> tuple[Tensor, Tensor, Tensor]:
-        """Propose a pair at obs, label it by ``annotator(obs, first, second)``, observe it; returns all three."""
+    def step(self, obs: Tensor, labeler: Labeler) -> tuple[Tensor, Tensor, Tensor]:
+        """Propose a pair at obs, label it by ``labeler(obs, first, second)``, observe it; returns all three."""
         first, second = self.propose(obs)
-        labels = annotator(obs, first, second)
+        labels = labeler(obs, first, second)
         self.observe(obs, first, second, labels)
         return first, second, labels
 

@@ -188,7 +188,7 @@ TABLES = {t.name: t for t in (
     Table("bandit_teacher_noise",
           "Linear dueling bandits: ICPO pretrained on a scripted teacher's labels (mistake rate ε)",
           tuple(Run(f"ICPO eps{e}", ("configs/icpo_bandit.yaml",), teacher(e)) for e in MISTAKE_RATES),
-          evaluations=(Evaluation("", ()),), contexts=("own", "flipped_labels"), eval_seeds=(0,),
+          evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS, eval_seeds=(0,),
           budget="≈ 2 min per fit on 1 core; 12 fits", figure="teacher_noise"),
     Table("bandit_paper_data", "Linear dueling bandits, the paper's 100k pretraining contexts: ICPO vs DTS",
           (Run("ICPO", ("configs/icpo_bandit.yaml",),

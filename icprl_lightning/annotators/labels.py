@@ -65,3 +65,12 @@ def resolve_labels(labels: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     out = labels.astype(np.uint8)
     out[undecided] = rng.random(int(undecided.sum())) < 0.5
     return out
+
+
+def stored_labels(answers: Any, n: int, owner: str, rng: np.random.Generator, counts: dict[str, int]) -> np.ndarray:
+    """A batch of an annotator's answers as a setting stores them: checked (``check_labels``), their EQUAL and
+    SKIP answers added to ``counts`` (``skip_count``, ``equal_count``), resolved to 0/1 (``resolve_labels``)."""
+    codes = check_labels(answers, n, owner)
+    for key, count in count_labels(codes).items():
+        counts[key] = counts.get(key, 0) + count
+    return resolve_labels(codes, rng)

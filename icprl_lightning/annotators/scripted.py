@@ -25,6 +25,7 @@ import numpy as np
 
 from icprl_lightning.annotators.base import Annotator, StepQueries, TrajectoryQueries
 from icprl_lightning.annotators.labels import EQUAL, SKIP
+from icprl_lightning.preferences import preference_probability
 from icprl_lightning.validation import HyperparameterError, check_interval, check_nonnegative
 
 
@@ -71,7 +72,7 @@ class ScriptedTeacher(Annotator):
         if math.isinf(self.beta):
             p = np.where(diff > 0, 1.0, np.where(diff < 0, 0.0, 0.5))
         else:
-            p = 1.0 / (1.0 + np.exp(-np.clip(self.beta * diff, -700.0, 700.0)))
+            p = preference_probability(first, second, 1.0 / self.beta)
         labels = (rng.random(diff.shape) < p).astype(np.uint8)
         mistake = rng.random(diff.shape) < self.epsilon
         labels[mistake] = 1 - labels[mistake]

@@ -38,7 +38,7 @@ import torch
 from rich.progress import track
 
 from icprl_lightning.annotators.base import Annotator, StepQueries
-from icprl_lightning.annotators.labels import check_labels, count_labels, resolve_labels
+from icprl_lightning.annotators.labels import stored_labels
 from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.settings.base import Setting
@@ -130,10 +130,8 @@ class BanditDuels(Setting):
                               np.take_along_axis(rewards, first, axis=1).reshape(-1),
                               np.take_along_axis(rewards, second, axis=1).reshape(-1),
                               np.repeat(theta, h, axis=0))
-        raw = check_labels(self.annotator.label_steps(queries, rng), n * h, type(self.annotator).__name__)
-        for key, count in count_labels(raw).items():
-            self.answers[key] += count
-        return resolve_labels(raw, rng).reshape(n, h)
+        return stored_labels(self.annotator.label_steps(queries, rng), n * h, type(self.annotator).__name__, rng,
+                             self.answers).reshape(n, h)
 
     def _agreement(self, family: LinearDuelingBanditFamily, theta: np.ndarray,
                    context: dict[str, np.ndarray]) -> tuple[float, int]:
@@ -164,6 +162,7 @@ class BanditDuels(Setting):
 
     def generate(self, family: LinearDuelingBanditFamily, progress: bool = True
                  ) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
+        self.answers = {"skip_count": 0, "equal_count": 0}  # this generation's undecided answers only
         train_seq, val_seq, test_seq = np.random.SeedSequence(family.seed).spawn(3)
         thetas, rngs = {}, {}
         for split, seq in (("train", train_seq), ("val", val_seq), ("test", test_seq)):

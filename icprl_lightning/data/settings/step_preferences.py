@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from icprl_lightning.annotators.base import Annotator, StepQueries
-from icprl_lightning.annotators.labels import check_labels, count_labels, resolve_labels
+from icprl_lightning.annotators.labels import stored_labels
 from icprl_lightning.data.settings.base import (
     STATE_SOURCES,
     MDPSetting,
@@ -109,10 +109,8 @@ class StepPreferences(MDPSetting):
                     u = oracle.utility(state, both)  # [2, m]
                     obs = roll.observations()
                     queries = StepQueries(obs, both[0], both[1], u[0], u[1], tasks[rows])
-                    raw = check_labels(self.annotator.label_steps(queries, rng), m, type(self.annotator).__name__)
-                    for key, count in count_labels(raw).items():
-                        answers[key] += count
-                    y = resolve_labels(raw, rng)
+                    y = stored_labels(self.annotator.label_steps(queries, rng), m, type(self.annotator).__name__,
+                                      rng, answers)
                     states[rows, h], pair[:, rows, h], optimal[rows, h] = obs, both, oracle.optimal_actions(state)
                     preferred[rows, h], utility[:, rows, h] = y, u
                     roll.step(self._next_action(y, both, first, second))

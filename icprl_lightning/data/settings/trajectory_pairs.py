@@ -32,7 +32,7 @@ import torch
 
 from icprl_lightning.annotators.base import Annotator, TrajectoryQueries
 from icprl_lightning.annotators.bradley_terry import BradleyTerryAnnotator
-from icprl_lightning.annotators.labels import check_labels, count_labels, resolve_labels
+from icprl_lightning.annotators.labels import stored_labels
 from icprl_lightning.contexts import RewardTrajectoryContext
 from icprl_lightning.data.batches import other_rows, to_tensor
 from icprl_lightning.data.settings.base import (
@@ -68,8 +68,8 @@ def label_trajectory_pairs(states: np.ndarray, actions: np.ndarray, rewards: np.
     ret_a, ret_b = rewards[:n].sum(1), rewards[n:2 * n].sum(1)
     queries = TrajectoryQueries(states[:n], actions[:n], rewards[:n], states[n:2 * n], actions[n:2 * n],
                                 rewards[n:2 * n], tasks)
-    answers = check_labels(annotator.label_trajectories(queries, rng), n, type(annotator).__name__)
-    preferred = resolve_labels(answers, rng)
+    counts = {"skip_count": 0, "equal_count": 0}
+    preferred = stored_labels(annotator.label_trajectories(queries, rng), n, type(annotator).__name__, rng, counts)
     arrays = {"states_a": states[:n], "actions_a": actions[:n], "states_b": states[n:2 * n],
               "actions_b": actions[n:2 * n], "preferred": preferred}
     oracle = {"rewards_a": rewards[:n], "rewards_b": rewards[n:2 * n]}
@@ -78,7 +78,7 @@ def label_trajectory_pairs(states: np.ndarray, actions: np.ndarray, rewards: np.
         oracle["behavior_rewards"] = rewards[2 * n:]
     stats = {"label_agreement": label_agreement(ret_a, ret_b, preferred),
              "tie_fraction": float(np.mean(ret_a == ret_b)),
-             "mean_return": float(np.concatenate([ret_a, ret_b]).mean()), **count_labels(answers)}
+             "mean_return": float(np.concatenate([ret_a, ret_b]).mean()), **counts}
     return arrays, oracle, stats
 
 
