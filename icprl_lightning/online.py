@@ -34,7 +34,14 @@ an active-query rule):
   first action is the agent's own action (argmax or a sample of T_θ for discrete actions, as ``act``; the
   mean for continuous ones), the second uniform over the *other* discrete actions, or uniform on the
   action box [-1, 1]^A.
-* ``TopTwo`` (discrete only): the model's two most likely actions, most likely first.
+* ``TopTwo`` (discrete only; an active rule): the model's two most likely actions, most likely first — the
+  comparison whose answer the model is least sure of among the actions it would take.
+* ``SampledPair`` (discrete only; an active rule in the spirit of double Thompson sampling): two distinct
+  actions drawn from T_θ, the second from T_θ renormalized without the first.
+* ``UniformPair`` (the passive reference): two distinct actions uniform at random (discrete), or two
+  uniform points of the action box (continuous); the model's outputs are not used.
+
+``PAIR_RULES`` names them for scripts (``scripts/online_bandit.py --rule``, ``scripts/online_darkroom.py``).
 """
 
 from __future__ import annotations
@@ -91,6 +98,39 @@ class TopTwo:
         agent.choose(outputs)  # the same check of finite outputs as act()
         top = outputs.topk(2, dim=-1).indices
         return top[:, 0], top[:, 1]
+
+
+class SampledPair:
+    """Two distinct actions sampled from T_θ (discrete only): the first ~ T_θ, the second ~ T_θ without the first."""
+
+    def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
+        if not agent.policy.action_spec.discrete:
+            raise ValueError("SampledPair needs discrete actions; this model's actions are continuous "
+                             "(use ActionAndUniform or another pair rule)")
+        agent.choose(outputs)  # the same check of finite outputs as act()
+        probs = torch.softmax(outputs.float(), dim=-1)
+        first = torch.multinomial(probs, 1, generator=agent.generator).squeeze(-1)
+        rest = probs.scatter(-1, first[:, None], 0.0)
+        # all mass on the first action (a saturated softmax) leaves the rest at 0: fall back to uniform over them
+        rest = torch.where(rest.sum(-1, keepdim=True) > 0, rest, torch.ones_like(rest).scatter(-1, first[:, None], 0.0))
+        second = torch.multinomial(rest, 1, generator=agent.generator).squeeze(-1)
+        return first, second
+
+
+class UniformPair:
+    """Two distinct uniform actions (discrete), or two uniform points of [-1, 1]^A: the passive reference rule."""
+
+    def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
+        spec, g, d = agent.policy.action_spec, agent.generator, outputs.device
+        shape = outputs.shape[:1] if spec.discrete else outputs.shape
+        if spec.discrete:
+            first = torch.randint(0, spec.size, shape, generator=g, device=d)
+            return first, (first + torch.randint(1, spec.size, shape, generator=g, device=d)) % spec.size
+        return tuple(torch.rand(shape, generator=g, device=d) * 2 - 1 for _ in range(2))
+
+
+PAIR_RULES: dict[str, type] = {"action_uniform": ActionAndUniform, "top_two": TopTwo, "sampled": SampledPair,
+                               "uniform": UniformPair}
 
 
 class OnlineAgent(Agent):

@@ -13,7 +13,7 @@ from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.models.transformer import CausalTransformer
-from icprl_lightning.online import TopTwo
+from icprl_lightning.online import PAIR_RULES, SampledPair, TopTwo, UniformPair
 
 TOL = dict(atol=1e-5, rtol=1e-5)
 
@@ -78,11 +78,11 @@ def test_appending_one_token_at_a_time_equals_reencoding(spec_index, b, steps, s
     assert agent.length == start + steps
     obs = torch.randn(b, state_dim, generator=g)
     _check_against_reencoding(agent, obs)
-    # not vacuous: the last comparison, its label flipped, changes the outputs far beyond the tolerance
+    # not vacuous: the last comparison, its label flipped, changes the outputs well beyond the tolerance (1e-5)
     flipped = agent.context.map(lambda x: x.clone())
     flipped.preferred[:, -1] = 1 - flipped.preferred[:, -1]
     visible = torch.tensor([agent.length])
-    assert (policy(flipped, obs[:, None], visible) - agent.outputs(obs)[:, None]).abs().max() > 1e-3
+    assert (policy(flipped, obs[:, None], visible) - agent.outputs(obs)[:, None]).abs().max() > 1e-4
 
 
 def test_uncached_agent_gives_the_same_proposals_and_actions():
@@ -184,6 +184,47 @@ def test_top_two_rule_and_continuous_refusal():
     continuous.reset(3)
     with pytest.raises(ValueError, match="TopTwo needs discrete actions"):
         continuous.propose(obs)
+
+
+@pytest.mark.parametrize("rule", [SampledPair, UniformPair])
+def test_sampled_and_uniform_pairs_are_distinct_valid_and_seeded(rule):
+    spec = ActionSpec(discrete=True, size=4)
+    obs = torch.randn(64, 2)
+    pairs = []
+    for _ in range(2):
+        agent = OnlineAgent(_policy(2, spec), pair_rule=rule(), seed=3)
+        agent.reset(64)
+        pairs.append(agent.propose(obs))
+    (first, second), again = pairs
+    assert torch.equal(first, again[0]) and torch.equal(second, again[1])  # same seed, same pairs
+    assert bool((first != second).all()) and int(first.min()) >= 0 and int(first.max()) < spec.size
+    assert len(set(first.tolist())) > 1 and len(set(second.tolist())) > 1
+
+
+def test_sampled_pair_follows_the_policy_and_survives_a_saturated_softmax():
+    spec = ActionSpec(discrete=True, size=5)
+    agent = OnlineAgent(_policy(2, spec), pair_rule=SampledPair(), seed=0)
+    agent.reset(1)
+    logits = torch.tensor([[0.0, 8.0, 7.0, -5.0, -5.0]]).repeat(4000, 1)
+    first, second = SampledPair()(agent, logits)
+    # first ~ softmax: action 1 with prob e^8 / (e^8 + e^7 + ...) ≈ 0.73; the second then mostly action 2
+    assert abs(float((first == 1).float().mean()) - 0.731) < 0.03
+    assert float((second[first == 1] == 2).float().mean()) > 0.95
+    saturated = torch.tensor([[0.0, 1e4, 0.0]])
+    a, b = SampledPair()(agent, saturated)
+    assert int(a) == 1 and int(b) in (0, 2)
+
+
+def test_continuous_rules():
+    spec = ActionSpec(discrete=False, size=2)
+    agent = OnlineAgent(_policy(2, spec), pair_rule=UniformPair(), seed=0)
+    agent.reset(5)
+    first, second = agent.propose(torch.randn(5, 2))
+    assert first.shape == second.shape == (5, 2) and float(first.abs().max()) <= 1
+    agent.pair_rule = SampledPair()
+    with pytest.raises(ValueError, match="SampledPair needs discrete actions"):
+        agent.propose(torch.randn(5, 2))
+    assert set(PAIR_RULES) == {"action_uniform", "top_two", "sampled", "uniform"}
 
 
 def test_other_context_kinds_are_refused():

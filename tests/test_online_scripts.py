@@ -1,0 +1,133 @@
+"""The online experiments (``scripts/online_mdp.py``, ``scripts/online_bandit.py``): the annotator answers the
+agent's own pairs at its own states, the label diagnostics invert or randomize what the agent sees, and the
+commands run end to end on tiny untrained checkpoints."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from icprl_lightning.annotators import BradleyTerryAnnotator
+from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.families.darkroom.oracle import optimal_advantage
+from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.policy import InContextPolicy
+from icprl_lightning.online import OnlineAgent
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+import online_bandit  # noqa: E402
+import online_mdp  # noqa: E402
+
+
+def test_query_steps_spread_over_the_horizon():
+    assert online_mdp.query_steps(100, 20).tolist() == list(range(0, 100, 5))
+    assert online_mdp.query_steps(100, 100).tolist() == list(range(100))
+    assert online_mdp.query_steps(100, 0).tolist() == []
+    assert len(online_mdp.query_steps(100, 33)) == 33
+    with pytest.raises(ValueError, match="queries per episode"):
+        online_mdp.query_steps(10, 11)
+
+
+def _agent(max_context: int = 100, seed: int = 0) -> OnlineAgent:
+    torch.manual_seed(seed)
+    policy = InContextPolicy("step_preference", 2, ActionSpec(discrete=True, size=5), n_layer=1, n_embd=16,
+                             n_head=2, max_context=max_context).eval()
+    return OnlineAgent(policy, seed=seed)
+
+
+@pytest.mark.parametrize("labels", ["own", "flipped", "random"])
+def test_online_episodes_ask_the_oracle_at_the_agents_own_states(tiny_ipref, labels):
+    suite = tiny_ipref.evaluation_suites()[0]
+    agent = _agent()
+    # a near-deterministic teacher, so that the stored label is the sign of A*(s, a) − A*(s, a')
+    result = online_mdp.online_episodes(agent, tiny_ipref.family, suite, BradleyTerryAnnotator(0.01), episodes=2,
+                                        seed=0, labels=labels)
+    assert result["return"].shape == (3, len(suite.task_index))
+    assert result["context_length"].tolist() == [50, 100, 100]  # the third episode asks nothing
+    ctx = agent.context
+    steps = online_mdp.query_steps(suite.horizon, 50)
+    goals = suite.make_env().goals
+    a_star = [optimal_advantage(ctx.states[:, i].numpy().astype(np.int64), ctx.actions[:, i].numpy(), goals,
+                                suite.horizon - steps[i % 50], tiny_ipref.family)
+              - optimal_advantage(ctx.states[:, i].numpy().astype(np.int64), ctx.alt_actions[:, i].numpy(), goals,
+                                  suite.horizon - steps[i % 50], tiny_ipref.family) for i in range(100)]
+    diff = np.stack(a_star, 1)
+    decided = np.abs(diff) > 0.1
+    agree = float(((diff > 0) == (ctx.preferred.numpy() == 1))[decided].mean())
+    expected = {"own": (0.99, 1.0), "flipped": (0.0, 0.01), "random": (0.4, 0.6)}[labels]
+    assert expected[0] <= agree <= expected[1], agree
+    # the context holds the states the agent visited: each episode's queried states start at its start cell
+    assert bool((ctx.states[:, 0] == ctx.states[:, 0].round()).all())
+
+
+def _save(module, path: Path) -> str:
+    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
+    module.on_save_checkpoint(checkpoint)
+    torch.save(checkpoint, path)
+    return str(path)
+
+
+@pytest.mark.slow
+def test_online_mdp_command_end_to_end(tmp_path, tiny_kwargs, capsys):
+    torch.manual_seed(0)
+    ckpt = _save(ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100, n_layer=1, n_embd=16,
+                            n_head=2), tmp_path / "icpo.ckpt")
+    setting = {k: v for k, v in tiny_kwargs.items() if k in ("trajectories_per_task", "val_trajectories_per_task",
+                                                             "eval_contexts_per_task", "calibration_episodes")}
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump({"data": {
+        "class_path": "icprl_lightning.data.PreferenceDataModule",
+        "init_args": {"family": {"class_path": "icprl_lightning.families.darkroom.DarkRoomFamily"},
+                      "setting": {"class_path": "icprl_lightning.data.settings.StepPreferences",
+                                  "init_args": {**setting, "reference_episodes": 4}},
+                      "root_dir": str(tmp_path / "data"), "pairs": True}}}))
+    out = online_mdp.main(["--config", str(config), "--ckpt", ckpt, "--ckpt", ckpt, "--episodes", "4",
+                           "--seeds", "0", "--rule", "action_uniform", "--rule", "top_two",
+                           "--figure", str(tmp_path / "online.png")])
+    for rule in ("action_uniform", "top_two"):
+        result = out["online"][rule]
+        assert result["queries_before_episode"] == [0, 25, 50, 75, 100]
+        assert len(result["mean"]) == 5 and all(0 <= e["return"] <= 100 for e in result["mean"])
+        # the same checkpoint twice: the training-seed sem is zero
+        assert all(e["return_sem"] == 0 for e in result["mean"])
+    assert set(out["offline"]) == {"low", "medium", "high"} and "optimal_return" in out["offline"]["low"]
+    assert (tmp_path / "online.png").stat().st_size > 0
+    assert '"online"' in capsys.readouterr().out
+
+
+def test_online_bandit_command_end_to_end(tmp_path, capsys):
+    torch.manual_seed(0)
+    ckpt = _save(ICPOModule(state_dim=0, action_dim=5, discrete=True, max_context=20, n_layer=1, n_embd=16,
+                            n_head=2), tmp_path / "bandit.ckpt")
+    config = tmp_path / "bandit.yaml"
+    config.write_text(yaml.safe_dump({"data": {
+        "class_path": "icprl_lightning.data.PreferenceDataModule",
+        "init_args": {"family": {"class_path": "icprl_lightning.families.dueling_bandit.LinearDuelingBanditFamily",
+                                 "init_args": {"n_arms": 5, "dim": 3, "horizon": 20}},
+                      "setting": {"class_path": "icprl_lightning.data.settings.BanditDuels",
+                                  "init_args": {"n_train_problems": 20, "n_val_problems": 4, "n_eval_problems": 6}},
+                      "root_dir": str(tmp_path / "data"), "pairs": True}}}))
+    args = ["--config", str(config), "--ckpt", ckpt, "--rounds", "20", "--seeds", "0", "1"]
+    out = online_bandit.main([*args, "--rule", "action_uniform", "--rule", "uniform",
+                              "--figure", str(tmp_path / "bandit.png")])
+    for rule in ("action_uniform", "uniform"):
+        mean = out["icpo"][rule]["mean"]
+        assert len(mean["recommendation_curve"]) == 20 and set(mean["recommendation_regret"]) == {"10"}
+        assert mean["cumulative_weak_regret"] >= 0 and mean["recommendation_regret"]["10"]["sem"] is None
+    flipped = online_bandit.main([*args, "--labels", "flipped"])
+    assert flipped["labels"] == "flipped"
+    assert flipped["dts"] == out["dts"]  # DTS keeps the true labels
+    assert flipped["icpo"]["action_uniform"] != out["icpo"]["action_uniform"]
+    capsys.readouterr()
+
+
+def test_queries_to_reach_needs_the_curve_to_stay_below():
+    assert online_bandit.queries_to_reach([0.5, 0.2, 0.35, 0.1, 0.12, 0.14]) == {
+        "0.4": 2, "0.35": 2, "0.3": 4, "0.25": 4}
+    assert online_bandit.queries_to_reach([0.1, 0.1, 0.4])["0.3"] is None
+    assert online_bandit.queries_to_reach([0.1, 0.1])["0.25"] == 1
