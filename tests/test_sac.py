@@ -106,6 +106,22 @@ def test_sac_oracle_saves_checkpoints_and_picks_closest_to_targets(oracle_dir):
         train_sac_oracle(GOALS, oracle_dir, timesteps=10)
 
 
+def test_sac_oracle_on_vectorized_envs_evaluates_each_multiple_and_reports_splits(tmp_path):
+    # 2 envs: num_timesteps goes 2, 4, ...; checkpoints where it first passes each multiple of 45
+    out = train_sac_oracle(GOALS, tmp_path / "oracle", timesteps=120, checkpoint_every=45, eval_episodes=2,
+                           horizon=30, n_envs=2, report_splits={"a": GOALS[:1], "b": GOALS},
+                           report_episodes_per_goal=1)
+    summary = json.loads((out / "summary.json").read_text())
+    assert [c["step"] for c in summary["checkpoints"]] == [0, 46, 90, 120] and summary["n_envs"] == 2
+    assert {k: v["episodes"] for k, v in summary["final_by_split"].items()} == {"a": 1, "b": 2}
+    for report in summary["final_by_split"].values():
+        assert set(report) >= {"deterministic", "stochastic", "uniform", "expert"}
+        assert report["expert"]["return"] > report["uniform"]["return"]  # the scripted expert reaches the goal
+    with pytest.raises(ValueError, match="n_envs must be >= 1"):
+        train_sac_oracle(GOALS, tmp_path / "other", timesteps=10, n_envs=0)
+    assert not (tmp_path / "other").exists()
+
+
 def test_calibrate_checkpoints_on_hand_values():
     records = [EvalRecord(step, r, 0.0, f"c/{step}") for step, r in enumerate([-100.0, -80.0, -60.0, -40.0, -20.0])]
     cal = calibrate_checkpoints(records, uniform_return=-100.0, expert_return=-10.0)

@@ -89,6 +89,7 @@ class EvalCheckpointCallback(BaseCallback):
         self.reset_options = reset_options
         self.eval_at_start = eval_at_start
         self.history: list[EvalRecord] = []
+        self._evaluated_multiple = 0  # the last multiple of eval_every_steps evaluated
         self.best_index = -1
         self._best_state: dict[str, Any] | None = None
 
@@ -97,7 +98,9 @@ class EvalCheckpointCallback(BaseCallback):
             self._evaluate()
 
     def _on_step(self) -> bool:
-        if self.num_timesteps % self.eval_every_steps == 0:
+        # With n vectorized envs num_timesteps grows by n per call: evaluate once per multiple crossed.
+        if self.num_timesteps // self.eval_every_steps > self._evaluated_multiple:
+            self._evaluated_multiple = self.num_timesteps // self.eval_every_steps
             self._evaluate()
         return True
 

@@ -48,6 +48,7 @@ import numpy as np
 import stable_baselines3
 import torch
 from stable_baselines3 import SAC
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from icprl_lightning.families.metaworld_reach import ReachTaskFamily
 from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON
@@ -98,15 +99,40 @@ def calibrate_checkpoints(records: Sequence[EvalRecord], uniform_return: float, 
     return out
 
 
+def split_report(model: SAC, goals: np.ndarray, horizon: int, episodes_per_goal: int, seed: int) -> dict[str, Any]:
+    """The final policy on every goal of a split (``episodes_per_goal`` fresh episodes each): return and
+    success acting by its mean (deterministic) and by sampling, beside uniform actions and the scripted expert."""
+    env = ReachGoalEnv(goals, horizon=horizon, goal_visible=True)
+    options = [{"goal_index": i % len(goals)} for i in range(episodes_per_goal * len(goals))]
+    n, rng = len(options), np.random.default_rng(seed)
+    policies: dict[str, Act] = {
+        "deterministic": lambda obs: model.predict(obs, deterministic=True)[0],
+        "stochastic": stochastic_act(seed)(model),
+        "uniform": lambda obs: rng.uniform(-1, 1, ACTION_DIM).astype(np.float32),
+        "expert": lambda obs: expert_actions(env.oracle_state())[0]}
+    out: dict[str, Any] = {"goals": len(goals), "episodes": n}
+    for name, act in policies.items():
+        stats = run_episodes(act, env, n, seed, options)
+        out[name] = {"return": float(stats.returns.mean()), "success": float(stats.success.mean())}
+    return out
+
+
 def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: int = 0,
                      checkpoint_every: int | None = None, eval_episodes: int = 10, horizon: int = HORIZON,
                      targets: Mapping[str, float] = QUALITY_TARGETS, overwrite: bool = False,
-                     extra: Mapping[str, Any] | None = None) -> Path:
+                     extra: Mapping[str, Any] | None = None, n_envs: int = 1,
+                     report_splits: Mapping[str, np.ndarray] | None = None, report_episodes_per_goal: int = 4
+                     ) -> Path:
     """Train one goal-conditioned SAC on ``goals`` [G, 3], save checkpoints, pick the behavior policies.
 
-    ``checkpoint_every`` defaults to timesteps // 20. Returns ``out``, written atomically. ``overwrite``
-    replaces only an oracle directory (its ``summary.json`` of this schema); anything else is refused.
+    ``checkpoint_every`` defaults to timesteps // 20. ``n_envs`` > 1 collects from that many envs at once
+    (SB3 ``DummyVecEnv``; one gradient step per vector step, so n transitions per update). The final policy
+    is reported on each goal set of ``report_splits`` (e.g. train and test goals; ``split_report``).
+    Returns ``out``, written atomically. ``overwrite`` replaces only an oracle directory (its
+    ``summary.json`` of this schema); anything else is refused.
     """
+    if n_envs < 1:
+        raise ValueError(f"n_envs must be >= 1, got {n_envs}")
     out = Path(out)
     if (out.exists() or out.is_symlink()) and not overwrite:
         raise FileExistsError(f"{out} exists; delete it or pass overwrite=True (--overwrite)")
@@ -119,8 +145,9 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
         options = [{"goal_index": i % len(goals)} for i in range(eval_episodes)]
         callback = EvalCheckpointCallback(eval_env, every, eval_episodes, eval_seed, stochastic_act(noise_seed),
                                           save_dir=tmp / "checkpoints", reset_options=options, eval_at_start=True)
-        model = SAC("MlpPolicy", ReachGoalEnv(goals, horizon=horizon, goal_visible=True), seed=model_seed,
-                    device="cpu")
+        train_env = (ReachGoalEnv(goals, horizon=horizon, goal_visible=True) if n_envs == 1 else
+                     DummyVecEnv([lambda: ReachGoalEnv(goals, horizon=horizon, goal_visible=True)] * n_envs))
+        model = SAC("MlpPolicy", train_env, seed=model_seed, device="cpu")
         start = time.perf_counter()
         model.learn(total_timesteps=timesteps, callback=callback)
         seconds = time.perf_counter() - start
@@ -131,6 +158,8 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
                               eval_seed, options).returns.mean()
         calibration = calibrate_checkpoints(callback.history, float(uniform), float(expert), targets)
         final = callback.history[-1]
+        splits = {name: split_report(model, g, horizon, report_episodes_per_goal, ref_seed)
+                  for name, g in (report_splits or {}).items()}
         summary = {
             "schema_version": SCHEMA_VERSION,
             "algorithm": f"SAC (stable-baselines3 {stable_baselines3.__version__}, default hyperparameters), "
@@ -142,7 +171,7 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
                                                       "return": final.mean_return, "success": final.success},
             "final_beats_uniform": bool(final.mean_return > uniform),
             "checkpoints": [r._asdict() for r in callback.history], "calibration": calibration,
-            "train_seconds": seconds, **(extra or {})}
+            "final_by_split": splits, "n_envs": n_envs, "train_seconds": seconds, **(extra or {})}
         with open(tmp / SUMMARY, "w") as f:
             json.dump(jsonable(summary), f, indent=2)
     return out
@@ -231,6 +260,7 @@ def main(args: Sequence[str] | None = None) -> Path:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--family-seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for these MLPs)")
+    parser.add_argument("--n-envs", type=int, default=1, help="envs collecting at once (n transitions per update)")
     parser.add_argument("--overwrite", action="store_true")
     parser.add_argument("--out", type=Path, required=True)
     ns = parser.parse_args(args)
@@ -243,11 +273,16 @@ def main(args: Sequence[str] | None = None) -> Path:
     command = "python -m icprl_lightning.families.metaworld_reach.sac " + " ".join(argv)
     out = train_sac_oracle(goals, ns.out, ns.timesteps, ns.seed, ns.checkpoint_every, ns.eval_episodes, ns.horizon,
                            overwrite=ns.overwrite, extra={"goal_split": ns.goals, "goal_index": ns.goal_index,
-                                                          "family_seed": ns.family_seed, "command": command})
+                                                          "family_seed": ns.family_seed, "command": command},
+                           n_envs=ns.n_envs, report_splits={"train": family.train_goals, "test": family.test_goals})
     summary = SACOracle(out).summary
     for name, c in summary["calibration"].items():
         print(f"{name}: step {c['step']}, normalized {c['achieved']:.2f} (target {c['target']}), "
               f"vs expert {c['achieved_vs_expert']:.2f}")
+    for name, r in summary["final_by_split"].items():
+        print(f"final policy on the {name} goals: success {r['deterministic']['success']:.2f} (mean action), "
+              f"{r['stochastic']['success']:.2f} (sampled); return {r['deterministic']['return']:.1f} vs expert "
+              f"{r['expert']['return']:.1f}, uniform {r['uniform']['return']:.1f}")
     if not summary["final_beats_uniform"]:
         print("warning: the final policy does not beat uniform actions; train longer", file=sys.stderr)
     return out
