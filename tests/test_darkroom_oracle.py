@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from icprl_lightning.families.darkroom import DarkRoomFamily
-from icprl_lightning.families.darkroom.env import N_ACTIONS, step_reward, transition
+from icprl_lightning.families.darkroom.env import N_ACTIONS, NOOP, step_reward, transition
 from icprl_lightning.families.darkroom.oracle import calibrate_mixing, optimal_actions, optimal_advantage
 
 
@@ -55,6 +55,20 @@ def test_optimal_action_has_zero_advantage():
     g = rng.integers(0, 10, size=(500, 2))
     adv = optimal_advantage(s, optimal_actions(s, g), g, 100, fam)
     np.testing.assert_array_equal(adv, 0.0)
+
+
+@pytest.mark.parametrize("size", [2, 5, 10])
+def test_optimal_action_table_is_the_x_then_y_rule(size):
+    """The sign lookup gives the rule it replaced (x gap first, then y, then NOOP) on every cell × goal."""
+    cells = np.array(list(itertools.product(range(size), repeat=2)))
+    s, g = np.repeat(cells, len(cells), axis=0), np.tile(cells, (len(cells), 1))
+    dx, dy = g[:, 0] - s[:, 0], g[:, 1] - s[:, 1]
+    rule = np.where(dx > 0, 3, np.where(dx < 0, 2, np.where(dy < 0, 1, np.where(dy > 0, 0, NOOP))))
+    got = optimal_actions(s, g)
+    assert got.dtype == np.int64
+    np.testing.assert_array_equal(got, rule)
+    np.testing.assert_array_equal(optimal_actions(s.reshape(size, -1, 2), g.reshape(size, -1, 2)),
+                                  rule.reshape(size, -1))
 
 
 def test_calibration_hits_targets_and_is_monotone():

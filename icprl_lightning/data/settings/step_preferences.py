@@ -88,11 +88,13 @@ class StepPreferences(MDPSetting):
         n, horizon, oracle = len(tasks), family.horizon, family.oracle
         spec = family.action_spec
         act_shape = () if spec.discrete else (spec.size,)
-        states = np.empty((n, horizon, family.obs_dim), dtype=np.float32)
-        pair = np.empty((2, n, horizon, *act_shape), dtype=family.action_dtype)
-        optimal = np.empty((n, horizon, *act_shape), dtype=family.action_dtype)
-        preferred = np.empty((n, horizon), dtype=np.uint8)
-        utility = np.empty((2, n, horizon))
+        # time-major buffers [H, N, ...]: each step writes one contiguous block (row-major [N, H, ...]
+        # would scatter every step's rows H elements apart); transposed once at the end
+        states = np.empty((horizon, n, family.obs_dim), dtype=np.float32)
+        pair = np.empty((2, horizon, n, *act_shape), dtype=family.action_dtype)
+        optimal = np.empty((horizon, n, *act_shape), dtype=family.action_dtype)
+        preferred = np.empty((horizon, n), dtype=np.uint8)
+        utility = np.empty((2, horizon, n))
         answers = {"skip_count": 0, "equal_count": 0}
         second_p = mixing[quality]
         first_p = None if self.first_policy == "uniform" else mixing[self.policy_names().index(self.first_policy)]
@@ -111,12 +113,15 @@ class StepPreferences(MDPSetting):
                     queries = StepQueries(obs, both[0], both[1], u[0], u[1], tasks[rows])
                     y = stored_labels(self.annotator.label_steps(queries, rng), m, type(self.annotator).__name__,
                                       rng, answers)
-                    states[rows, h], pair[:, rows, h], optimal[rows, h] = obs, both, oracle.optimal_actions(state)
-                    preferred[rows, h], utility[:, rows, h] = y, u
+                    states[h, rows], pair[:, h, rows], optimal[h, rows] = obs, both, oracle.optimal_actions(state)
+                    preferred[h, rows], utility[:, h, rows] = y, u
                     roll.step(self._next_action(y, both, first, second))
+        # the statistics are means over all pairs: the same in either layout
         stats = {"label_agreement": label_agreement(utility[0], utility[1], preferred),
                  "tie_fraction": float(np.mean(utility[0] == utility[1])), **answers}
-        arrays = {"states": states, "actions": pair[0], "alt_actions": pair[1], "preferred": preferred}
+        states, optimal = _row_major(states), _row_major(optimal)
+        arrays = {"states": states, "actions": _row_major(pair[0]), "alt_actions": _row_major(pair[1]),
+                  "preferred": _row_major(preferred)}
         arrays.update(oracle.query_labels(tasks, states, optimal, horizon, rng))
         return arrays, stats
 
@@ -134,3 +139,18 @@ class StepPreferences(MDPSetting):
 def _column(mask: np.ndarray, ndim: int) -> np.ndarray:
     """A per-row mask [N] shaped to broadcast against actions of ``ndim`` dims ([N] or [N, A])."""
     return mask.reshape(-1, *[1] * (ndim - 1))
+
+
+def _row_major(steps_first: np.ndarray) -> np.ndarray:
+    """A C-contiguous time-major buffer [H, N, ...] as the stored C-contiguous [N, H, ...].
+
+    Each element's trailing values (a state's coordinates, a continuous action) move as one raw item:
+    NumPy copies such an item with one memcpy, several times faster than transposing value by value.
+    """
+    horizon, n, *trailing = steps_first.shape
+    width = int(np.prod(trailing, dtype=np.int64))
+    if width == 0:  # nothing to move (e.g. zero-dimensional observations)
+        return np.empty((n, horizon, *trailing), dtype=steps_first.dtype)
+    items = steps_first.reshape(horizon, n, width).view(np.dtype((np.void, steps_first.itemsize * width)))
+    moved = np.ascontiguousarray(items[..., 0].T)
+    return moved.view(steps_first.dtype).reshape(n, horizon, *trailing)

@@ -31,16 +31,19 @@ if TYPE_CHECKING:
     from icprl_lightning.families.darkroom.family import DarkRoomFamily
 
 
+# OPTIMAL_BY_SIGN[3 · sign(dx) + sign(dy)] (negative codes index from the end): the action that closes
+# the x gap first, then the y gap, then stays (NOOP on the goal). One lookup instead of a chain of
+# np.where over the batch: data generation calls this on every step and on [N, H] query states.
+OPTIMAL_BY_SIGN = np.array([NOOP, 0, 3, 3, 3, 2, 2, 2, 1], dtype=np.int64)
+QUERY_BLOCK_CELLS = 2**15  # query cells drawn and labeled at once in ``DarkRoomOracle.query_labels``
+
 
 def optimal_actions(states: np.ndarray, goals: np.ndarray) -> np.ndarray:
-    """A deterministic optimal action: close the x gap first, then the y gap, then stay."""
-    dx = goals[..., 0] - states[..., 0]
-    dy = goals[..., 1] - states[..., 1]
-    act = np.full(dx.shape, NOOP, dtype=np.int64)
-    act = np.where(dy > 0, 0, act)
-    act = np.where(dy < 0, 1, act)
-    act = np.where(dx < 0, 2, act)
-    return np.where(dx > 0, 3, act)
+    """A deterministic optimal action: close the x gap first, then the y gap, then stay (int64)."""
+    sign = np.sign(goals - states)
+    code = sign[..., 0] * 3
+    code += sign[..., 1]
+    return OPTIMAL_BY_SIGN[code]
 
 
 def optimal_value(states: np.ndarray, goals: np.ndarray, steps_left: np.ndarray | int,
@@ -62,7 +65,7 @@ def optimal_advantage(states: np.ndarray, actions: np.ndarray, goals: np.ndarray
     cont = optimal_value(nxt, goals, k - 1, family.terminate_on_goal)
     if family.terminate_on_goal:
         cont = np.where(r > 0, 0.0, cont)
-    return (r + cont - optimal_value(states, goals, k, family.terminate_on_goal)).astype(np.float32)
+    return (r + cont - optimal_value(states, goals, k, family.terminate_on_goal)).astype(np.float32, copy=False)
 
 
 def rollout_returns(family: DarkRoomFamily, goals: np.ndarray, p_optimal: np.ndarray,
@@ -121,7 +124,17 @@ class DarkRoomOracle(Oracle):
 
     def query_labels(self, tasks: np.ndarray, visited_states: np.ndarray, visited_optimal: np.ndarray,
                      horizon: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-        """Query states uniform over the grid [N, H, 2] (not the visited ones) and their optimal actions."""
-        states = rng.integers(0, self.family.size, size=(len(tasks), horizon, 2))
-        labels = optimal_actions(states, tasks[:, None, :])
-        return {"query_states": states.astype(np.float32), "optimal_actions": labels.astype(np.int8)}
+        """Query states uniform over the grid [N, H, 2] (not the visited ones) and their optimal actions.
+
+        Drawn and labeled in blocks of rows, so that no int64 temporary spans all N × H cells (128 MB
+        each at paper scale, N = 80,000). ``Generator.integers`` takes the cells one by one from the stream:
+        the blocks' draws are those of one draw of all cells, in the same order (the dataset's bytes).
+        """
+        states = np.empty((len(tasks), horizon, 2), dtype=np.float32)
+        labels = np.empty((len(tasks), horizon), dtype=np.int8)
+        block = max(1, QUERY_BLOCK_CELLS // horizon)
+        for lo in range(0, len(tasks), block):
+            cells = rng.integers(0, self.family.size, size=states[lo:lo + block].shape)
+            states[lo:lo + block] = cells
+            labels[lo:lo + block] = optimal_actions(cells, tasks[lo:lo + block, None, :])
+        return {"query_states": states, "optimal_actions": labels}
