@@ -4,7 +4,7 @@ import torch
 
 from icprl_lightning.contexts import ActionSpec, StepPreferenceContext
 from icprl_lightning.models.policy import InContextPolicy
-from icprl_lightning.models.transformer import CausalTransformer, query_mask
+from icprl_lightning.models.transformer import ENCODE_ROWS, CausalTransformer, query_mask
 
 
 def test_query_mask():
@@ -39,6 +39,19 @@ def test_cached_queries_equal_the_full_forward():
     cached = net.query(net.encode(ctx), q)
     torch.testing.assert_close(cached, full, atol=1e-5, rtol=1e-5)
 
+
+
+def test_encode_in_row_chunks_equals_the_whole_batch():
+    """``encode`` runs the batch ENCODE_ROWS rows at a time: a ragged last chunk, single and multi-token queries."""
+    torch.manual_seed(0)
+    net = CausalTransformer(n_layer=2, n_embd=16, n_head=2, max_context=8).eval()
+    b = 2 * ENCODE_ROWS + 3
+    ctx = torch.randn(b, 8, 16)
+    cache = net.encode(ctx)
+    assert cache.length == 8 and cache.keys[0].shape == (b, 2, 9, 8)
+    for q in (torch.randn(b, 1, 16), torch.randn(b, 3, 16)):
+        full = net(ctx, q, torch.full((q.shape[1],), 8))
+        torch.testing.assert_close(net.query(cache, q), full, atol=1e-5, rtol=1e-5)
 
 def test_policy_cache_agrees_for_discrete_and_continuous():
     torch.manual_seed(0)

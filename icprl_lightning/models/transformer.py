@@ -27,6 +27,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+# tasks per chunk of ``CausalTransformer.encode``: 64 DarkRoom contexts of 100 tokens keep a small model's
+# MLP activations (6,400 x 128 floats) within the CPU's cache (benchmarks/deployment_throughput.py)
+ENCODE_ROWS = 64
+
 
 @dataclass
 class KVCache:
@@ -53,15 +57,16 @@ class KVCache:
             self.values[i][:, :, : self.length] = v[:, :, : self.length]
 
 
-def decode_attention(q: Tensor, k: Tensor, v: Tensor, mask: Tensor) -> Tensor:
+def decode_attention(q: Tensor, k: Tensor, v: Tensor, mask: Tensor | None) -> Tensor:
     """softmax(q kᵀ / √d, masked) v for a few query tokens against a long cache, as two batched matmuls.
 
     The same attention as ``F.scaled_dot_product_attention``; on CPU its fused kernel tiles over query
     blocks and costs several times more than this for one query token per sequence (an act()), which is
-    bandwidth-bound on reading the cache (``benchmarks/deployment_throughput.py``).
+    bandwidth-bound on reading the cache (``benchmarks/deployment_throughput.py``). ``mask`` None means
+    every query sees every key (one query token after the context: an act()), and skips the masking.
     """
     scores = torch.einsum("bhqd,bhkd->bhqk", q, k).mul_(q.shape[-1] ** -0.5)
-    if not bool(mask.all()):
+    if mask is not None:
         scores.masked_fill_(~mask, float("-inf"))
     return torch.einsum("bhqk,bhkd->bhqd", scores.softmax(-1), v)
 
@@ -76,7 +81,7 @@ class SelfAttention(nn.Module):
         self.dropout = dropout
         self.resid_drop = nn.Dropout(dropout)
 
-    def forward(self, x: Tensor, mask: Tensor, past: tuple[Tensor, Tensor] | None = None, past_length: int = 0
+    def forward(self, x: Tensor, mask: Tensor | None, past: tuple[Tensor, Tensor] | None = None, past_length: int = 0
                 ) -> tuple[Tensor, tuple[Tensor, Tensor]]:
         """With ``past`` (cache buffers), x's keys/values go into the slots after ``past_length`` in place."""
         b, t, c = x.shape
@@ -103,7 +108,7 @@ class Block(nn.Module):
         self.mlp = nn.Sequential(nn.Linear(n_embd, 4 * n_embd), nn.GELU(), nn.Linear(4 * n_embd, n_embd),
                                  nn.Dropout(dropout))
 
-    def forward(self, x: Tensor, mask: Tensor, past: tuple[Tensor, Tensor] | None = None, past_length: int = 0
+    def forward(self, x: Tensor, mask: Tensor | None, past: tuple[Tensor, Tensor] | None = None, past_length: int = 0
                 ) -> tuple[Tensor, tuple[Tensor, Tensor]]:
         a, kv = self.attn(self.ln1(x), mask, past, past_length)
         x = x + a
@@ -158,27 +163,38 @@ class CausalTransformer(nn.Module):
         return self.ln_f(x[:, t:])
 
     def encode(self, context: Tensor) -> KVCache:
-        """Run the context (B, T, D) once; keep each layer's keys and values."""
-        t = context.shape[1]
+        """Run the context (B, T, D) once; keep each layer's keys and values (with one query slot after them).
+
+        The batch goes through ``ENCODE_ROWS`` rows at a time, each chunk through every layer, writing its
+        keys and values straight into the cache buffers: a chunk's activations stay in the CPU's cache
+        and their buffers are reused, where the whole batch at once (1,000 DarkRoom tasks: 100k tokens)
+        streamed every intermediate through memory, and ``reserve`` copied the cache once more. Rows are
+        independent, so the result is the whole-batch pass's.
+        """
+        b, t, d = context.shape
         self._check_length(t)
-        x = self.drop(context + self.pos(torch.arange(t, device=context.device)))
+        x_all = self.drop(context + self.pos(torch.arange(t, device=context.device)))
         mask = torch.ones(t, t, dtype=torch.bool, device=context.device).tril()
-        keys, values = [], []
-        for block in self.blocks:
-            x, (k, v) = block(x, mask)
-            keys.append(k)
-            values.append(v)
-        cache = KVCache(keys, values, t)
-        cache.reserve(1)  # one act() = one query token
-        return cache
+        n_head = self.blocks[0].attn.n_head
+        shape = (b, n_head, t + 1, d // n_head)  # one act() = one query token
+        keys = [x_all.new_empty(shape) for _ in self.blocks]
+        values = [x_all.new_empty(shape) for _ in self.blocks]
+        for start in range(0, b, ENCODE_ROWS):
+            rows = slice(start, start + ENCODE_ROWS)
+            x = x_all[rows]
+            for block, k_buf, v_buf in zip(self.blocks, keys, values, strict=True):
+                x, (k, v) = block(x, mask)
+                k_buf[rows, :, :t] = k
+                v_buf[rows, :, :t] = v
+        return KVCache(keys, values, t)
 
     def query(self, cache: KVCache, queries: Tensor) -> Tensor:
         """Queries (B, Q, D) that each see the whole cached context and themselves -> (B, Q, D)."""
         t, q = cache.length, queries.shape[1]
         cache.reserve(q)
         x = self.drop(queries + self.pos(torch.full((q,), t, device=queries.device)))
-        mask = torch.cat([torch.ones(q, t, dtype=torch.bool, device=queries.device),
-                          torch.eye(q, dtype=torch.bool, device=queries.device)], dim=1)
+        mask = None if q == 1 else torch.cat([torch.ones(q, t, dtype=torch.bool, device=queries.device),
+                                              torch.eye(q, dtype=torch.bool, device=queries.device)], dim=1)
         for block, k, v in zip(self.blocks, cache.keys, cache.values, strict=True):
             x, _ = block(x, mask, past=(k, v), past_length=t)
         return self.ln_f(x)
