@@ -83,3 +83,18 @@ def test_a_record_is_reused_only_while_its_command_and_configs_are_unchanged(tmp
     record.write_text(json.dumps({"command": " ".join(command), "checkpoint": "x/last.ckpt"}))  # no digest
     reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
     assert "icprl fit" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("table_name, metric, reference", [("bandit_teacher_noise", "weak_regret", "dts"),
+                                                           ("darkroom_teacher_noise", "return", "behavior")])
+def test_teacher_noise_figure_reads_regret_or_return(tmp_path, table_name, metric, reference):
+    from icprl_lightning.reproduce import FIGURES, MISTAKE_RATES
+
+    table = TABLES[table_name]
+    sources = ("uniform", "dts") if metric == "weak_regret" else ("low", "medium", "high")
+    results = {f"ICPO eps{e}": {s: {metric: 0.1 * i, f"{metric}_sem": 0.01} for s in sources}
+               for i, e in enumerate(MISTAKE_RATES)}
+    results[reference] = {s: {metric: 0.5} for s in sources}
+    (tmp_path / f"{table_name}.json").write_text(json.dumps({"results": results}))
+    FIGURES[table.figure](table, tmp_path)
+    assert (tmp_path / f"{table_name}_vs_noise.png").stat().st_size > 0
