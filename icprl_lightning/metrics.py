@@ -65,6 +65,12 @@ def mean_sem(values: np.ndarray) -> tuple[float, float]:
     return float(values.mean()), float(sem)
 
 
+def mean_sem_or_none(values) -> tuple[float, float | None]:
+    """``mean_sem``, with the sem ``None`` for a single value (no spread to report; JSON has no NaN)."""
+    mean, sem = mean_sem(values)
+    return mean, (sem if len(np.atleast_1d(values)) > 1 else None)
+
+
 def per_task_mean(values: np.ndarray, task_index: np.ndarray) -> np.ndarray:
     tasks, inverse = np.unique(task_index, return_inverse=True)
     return np.bincount(inverse, weights=values) / np.bincount(inverse)

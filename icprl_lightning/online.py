@@ -75,28 +75,41 @@ class PairRule(Protocol):
         ...
 
 
+def _other_action(agent: OnlineAgent, first: Tensor) -> Tensor:
+    """An action uniform over the n − 1 discrete actions other than ``first`` (a uniform non-zero offset)."""
+    n = agent.policy.action_spec.size
+    return (first + torch.randint(1, n, first.shape, generator=agent.generator, device=first.device)) % n
+
+
+def _uniform_box(agent: OnlineAgent, shape: torch.Size, device: torch.device) -> Tensor:
+    """Points uniform on the continuous action box [-1, 1]^A."""
+    return torch.rand(shape, generator=agent.generator, device=device) * 2 - 1
+
+
+def _discrete_outputs(rule: str, agent: OnlineAgent, outputs: Tensor) -> Tensor:
+    """``outputs`` of a model with discrete actions, checked finite as ``act`` checks them; else a clear error."""
+    if not agent.policy.action_spec.discrete:
+        raise ValueError(f"{rule} needs discrete actions; this model's actions are continuous "
+                         "(use ActionAndUniform or another pair rule)")
+    agent.choose(outputs)
+    return outputs
+
+
 class ActionAndUniform:
     """The agent's own action first; the second uniform over the other arms (discrete) or on [-1, 1]^A."""
 
     def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
         first = agent.choose(outputs)
-        spec = agent.policy.action_spec
-        if spec.discrete:
-            # A uniform non-zero offset makes the second action uniform over the other n − 1 actions.
-            offset = torch.randint(1, spec.size, first.shape, generator=agent.generator, device=first.device)
-            return first, (first + offset) % spec.size
-        return first, torch.rand(first.shape, generator=agent.generator, device=first.device) * 2 - 1
+        if agent.policy.action_spec.discrete:
+            return first, _other_action(agent, first)
+        return first, _uniform_box(agent, first.shape, first.device)
 
 
 class TopTwo:
     """The two actions of highest probability under T_θ, the most likely first (discrete actions only)."""
 
     def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
-        if not agent.policy.action_spec.discrete:
-            raise ValueError("TopTwo needs discrete actions; this model's actions are continuous "
-                             "(use ActionAndUniform or another pair rule)")
-        agent.choose(outputs)  # the same check of finite outputs as act()
-        top = outputs.topk(2, dim=-1).indices
+        top = _discrete_outputs("TopTwo", agent, outputs).topk(2, dim=-1).indices
         return top[:, 0], top[:, 1]
 
 
@@ -104,29 +117,23 @@ class SampledPair:
     """Two distinct actions sampled from T_θ (discrete only): the first ~ T_θ, the second ~ T_θ without the first."""
 
     def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
-        if not agent.policy.action_spec.discrete:
-            raise ValueError("SampledPair needs discrete actions; this model's actions are continuous "
-                             "(use ActionAndUniform or another pair rule)")
-        agent.choose(outputs)  # the same check of finite outputs as act()
-        probs = torch.softmax(outputs.float(), dim=-1)
+        probs = torch.softmax(_discrete_outputs("SampledPair", agent, outputs).float(), dim=-1)
         first = torch.multinomial(probs, 1, generator=agent.generator).squeeze(-1)
         rest = probs.scatter(-1, first[:, None], 0.0)
         # all mass on the first action (a saturated softmax) leaves the rest at 0: fall back to uniform over them
         rest = torch.where(rest.sum(-1, keepdim=True) > 0, rest, torch.ones_like(rest).scatter(-1, first[:, None], 0.0))
-        second = torch.multinomial(rest, 1, generator=agent.generator).squeeze(-1)
-        return first, second
+        return first, torch.multinomial(rest, 1, generator=agent.generator).squeeze(-1)
 
 
 class UniformPair:
     """Two distinct uniform actions (discrete), or two uniform points of [-1, 1]^A: the passive reference rule."""
 
     def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
-        spec, g, d = agent.policy.action_spec, agent.generator, outputs.device
-        shape = outputs.shape[:1] if spec.discrete else outputs.shape
-        if spec.discrete:
-            first = torch.randint(0, spec.size, shape, generator=g, device=d)
-            return first, (first + torch.randint(1, spec.size, shape, generator=g, device=d)) % spec.size
-        return tuple(torch.rand(shape, generator=g, device=d) * 2 - 1 for _ in range(2))
+        if agent.policy.action_spec.discrete:
+            first = torch.randint(0, agent.policy.action_spec.size, outputs.shape[:1], generator=agent.generator,
+                                  device=outputs.device)
+            return first, _other_action(agent, first)
+        return _uniform_box(agent, outputs.shape, outputs.device), _uniform_box(agent, outputs.shape, outputs.device)
 
 
 PAIR_RULES: dict[str, type] = {"action_uniform": ActionAndUniform, "top_two": TopTwo, "sampled": SampledPair,

@@ -45,7 +45,7 @@ from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.evaluation.duels import seed_streams
 from icprl_lightning.families.dueling_bandit import LinearDuelingBanditFamily
 from icprl_lightning.families.dueling_bandit.dts import run_dts
-from icprl_lightning.metrics import mean_sem, weak_regret
+from icprl_lightning.metrics import mean_sem, mean_sem_or_none, weak_regret
 from icprl_lightning.online import PAIR_RULES, OnlineAgent
 
 BUDGETS = (10, 25, 50, 100, 200)
@@ -124,10 +124,7 @@ def queries_to_reach(curve) -> dict[str, int | None]:
 
 def over_checkpoints(per_ckpt: list[dict]) -> dict:
     """Mean ± sem over training seeds of every scalar of ``summarize`` (budgets included; sem ``None`` for one)."""
-    def stats(values: list[float]) -> tuple[float, float | None]:
-        mean, sem = mean_sem(np.array(values))
-        return mean, (sem if len(values) > 1 else None)
-
+    stats = mean_sem_or_none
     out = {}
     for key in ("cumulative_weak_regret", "final_weak_regret"):
         out[key], out[f"{key}_sem"] = stats([s[key] for s in per_ckpt])
@@ -185,8 +182,9 @@ def main(argv: list[str] | None = None) -> dict:
     dm.prepare_data()
     family = dm.family
     theta = np.asarray(dm.load()["tasks"]["test_theta"])[:args.n_problems]
-    for ckpt in args.ckpt:
-        policy = OnlineAgent.load(ckpt).policy
+    loaded = {ckpt: OnlineAgent.load(ckpt) for ckpt in args.ckpt}  # read once; each seed below reuses the policy
+    for ckpt, probe in loaded.items():
+        policy = probe.policy
         if policy.state_dim != 0 or policy.action_spec != family.action_spec:
             parser.error(f"{ckpt} is not a policy of this bandit (state_dim {policy.state_dim}, actions "
                          f"{policy.action_spec}; the family has state_dim 0 and {family.action_spec})")
@@ -204,7 +202,8 @@ def main(argv: list[str] | None = None) -> dict:
         per_ckpt = []
         for ckpt in args.ckpt:
             def play(seed: int, ckpt: str = ckpt, rule: str = rule) -> dict[str, torch.Tensor]:
-                agent = OnlineAgent.load(ckpt, seed=seed, pair_rule=PAIR_RULES[rule]())
+                probe = loaded[ckpt]
+                agent = OnlineAgent(probe.policy, greedy=probe.greedy, seed=seed, pair_rule=PAIR_RULES[rule]())
                 return icpo_online(agent, family, theta, args.rounds, seed_streams(seed)[0], args.labels)
             per_ckpt.append(summarize(seed_mean(play)))
         icpo[rule] = {"mean": over_checkpoints(per_ckpt), "per_checkpoint": per_ckpt}

@@ -45,7 +45,8 @@ from icprl_lightning.annotators.labels import stored_labels
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.deploy import load_agent
 from icprl_lightning.evaluation.rollout import rollout_seeds
-from icprl_lightning.metrics import mean_sem, per_task_mean
+from icprl_lightning.families.base import TaskFamily
+from icprl_lightning.metrics import mean_sem, mean_sem_or_none, per_task_mean
 from icprl_lightning.online import PAIR_RULES, OnlineAgent
 
 LABELS = ("own", "flipped", "random")
@@ -70,6 +71,7 @@ def online_episodes(agent: OnlineAgent, family, suite, annotator, episodes: int,
     returns, lengths = [], []
     try:
         b = env.num_envs
+        tasks = np.asarray(env.goals) if hasattr(env, "goals") else None  # what the annotator may read of the task
         agent.reset(b)
         for episode in range(episodes + 1):
             obs, _ = env.reset(seed=seed * 1000 + episode)
@@ -80,8 +82,7 @@ def online_episodes(agent: OnlineAgent, family, suite, annotator, episodes: int,
                     first, second = agent.propose(obs_t)
                     both = np.stack([first.cpu().numpy(), second.cpu().numpy()])
                     u = family.oracle.utility(env.oracle_state(), both)
-                    queries = StepQueries(np.asarray(obs, dtype=np.float32), both[0], both[1], u[0], u[1],
-                                          np.asarray(env.goals) if hasattr(env, "goals") else None)
+                    queries = StepQueries(np.asarray(obs, dtype=np.float32), both[0], both[1], u[0], u[1], tasks)
                     y = stored_labels(annotator.label_steps(queries, rng), b, type(annotator).__name__, rng, counts)
                     if labels == "flipped":
                         y = 1 - y
@@ -106,8 +107,8 @@ def task_stats(values: np.ndarray, task_index: np.ndarray) -> tuple[float, float
 
 
 def over_seeds(values: list[float]) -> dict[str, float | None]:
-    mean, sem = mean_sem(np.array(values))
-    return {"return": mean, "return_sem": sem if len(values) > 1 else None, "per_seed": values}
+    mean, sem = mean_sem_or_none(values)
+    return {"return": mean, "return_sem": sem, "per_seed": values}
 
 
 def dqn_curve(path: Path) -> dict[str, float]:
@@ -176,8 +177,14 @@ def main(argv: list[str] | None = None) -> dict:
     dm.prepare_data()
     dm.setup("validate")
     family, annotator = dm.family, dm.setting.annotator
-    if not hasattr(family.oracle, "utility"):
-        parser.error(f"{type(family).__name__}'s oracle has no utility(): its queries cannot be answered")
+    if not isinstance(family, TaskFamily):
+        parser.error(f"{type(family).__name__} is not an MDP family (families/base.TaskFamily): no oracle to "
+                     "answer queries at states (dueling bandits: scripts/online_bandit.py)")
+    loaded = {ckpt: OnlineAgent.load(ckpt) for ckpt in args.ckpt}  # read once; each seed below reuses the policy
+    max_context = {a.policy.transformer.max_context for a in loaded.values()}
+    if len(max_context) != 1:
+        parser.error(f"the checkpoints' max_context differ ({sorted(max_context)}): one query budget needs one")
+    per_episode = max_context.pop() // args.episodes
     suites = {s.quality: s for s in dm.evaluation_suites()}
     if args.quality not in suites:
         parser.error(f"--quality must be one of {sorted(suites)}, got {args.quality!r}")
@@ -197,7 +204,8 @@ def main(argv: list[str] | None = None) -> dict:
         for ckpt in args.ckpt:
             episodes = []
             for seed in args.seeds:
-                agent = OnlineAgent.load(ckpt, seed=seed, pair_rule=PAIR_RULES[rule]())
+                probe = loaded[ckpt]
+                agent = OnlineAgent(probe.policy, greedy=probe.greedy, seed=seed, pair_rule=PAIR_RULES[rule]())
                 result = online_episodes(agent, family, suite, annotator, args.episodes, seed, args.labels)
                 episodes.append(result["return"])
                 for key in ("skip_count", "equal_count"):
@@ -205,7 +213,6 @@ def main(argv: list[str] | None = None) -> dict:
             joined = np.concatenate(episodes, axis=1)  # [E + 1, seeds · B]
             per_ckpt.append([task_stats(e, np.tile(suite.task_index, len(args.seeds)))[0] for e in joined])
         means = [over_seeds([c[e] for c in per_ckpt]) for e in range(args.episodes + 1)]
-        per_episode = OnlineAgent.load(args.ckpt[0]).policy.transformer.max_context // args.episodes
         queries = [e * per_episode for e in range(args.episodes + 1)]
         reach = {}
         for target in targets:

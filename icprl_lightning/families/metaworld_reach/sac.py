@@ -99,17 +99,22 @@ def calibrate_checkpoints(records: Sequence[EvalRecord], uniform_return: float, 
     return out
 
 
+def reference_acts(env: ReachGoalEnv, rng: np.random.Generator) -> dict[str, Act]:
+    """The two reference policies of every report, on ``env``: uniform actions (from ``rng``) and the scripted
+    expert (which reads ``env``'s privileged state)."""
+    return {"uniform": lambda obs: rng.uniform(-1, 1, ACTION_DIM).astype(np.float32),
+            "expert": lambda obs: expert_actions(env.oracle_state())[0]}
+
+
 def split_report(model: SAC, goals: np.ndarray, horizon: int, episodes_per_goal: int, seed: int) -> dict[str, Any]:
     """The final policy on every goal of a split (``episodes_per_goal`` fresh episodes each): return and
     success acting by its mean (deterministic) and by sampling, beside uniform actions and the scripted expert."""
     env = ReachGoalEnv(goals, horizon=horizon, goal_visible=True)
     options = [{"goal_index": i % len(goals)} for i in range(episodes_per_goal * len(goals))]
-    n, rng = len(options), np.random.default_rng(seed)
-    policies: dict[str, Act] = {
-        "deterministic": lambda obs: model.predict(obs, deterministic=True)[0],
-        "stochastic": stochastic_act(seed)(model),
-        "uniform": lambda obs: rng.uniform(-1, 1, ACTION_DIM).astype(np.float32),
-        "expert": lambda obs: expert_actions(env.oracle_state())[0]}
+    n = len(options)
+    policies: dict[str, Act] = {"deterministic": lambda obs: model.predict(obs, deterministic=True)[0],
+                                "stochastic": stochastic_act(seed)(model),
+                                **reference_acts(env, np.random.default_rng(seed))}
     out: dict[str, Any] = {"goals": len(goals), "episodes": n}
     for name, act in policies.items():
         stats = run_episodes(act, env, n, seed, options)
@@ -151,11 +156,8 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
         start = time.perf_counter()
         model.learn(total_timesteps=timesteps, callback=callback)
         seconds = time.perf_counter() - start
-        rng = np.random.default_rng(ref_seed)
-        uniform = run_episodes(lambda obs: rng.uniform(-1, 1, ACTION_DIM).astype(np.float32), eval_env,
-                               eval_episodes, eval_seed, options).returns.mean()
-        expert = run_episodes(lambda obs: expert_actions(eval_env.oracle_state())[0], eval_env, eval_episodes,
-                              eval_seed, options).returns.mean()
+        uniform, expert = (run_episodes(act, eval_env, eval_episodes, eval_seed, options).returns.mean()
+                           for act in reference_acts(eval_env, np.random.default_rng(ref_seed)).values())
         calibration = calibrate_checkpoints(callback.history, float(uniform), float(expert), targets)
         final = callback.history[-1]
         splits = {name: split_report(model, g, horizon, report_episodes_per_goal, ref_seed)
