@@ -34,7 +34,7 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from icprl_lightning.families.base import QUALITIES
@@ -50,12 +50,21 @@ def slug(name: str) -> str:
 
 @dataclass(frozen=True)
 class Run:
-    """One method of a table: its configs (stacked, as repeated ``--config``) and command-line overrides."""
+    """One method of a table: its configs (stacked, as repeated ``--config``) and command-line overrides.
+
+    A later stage of a pipeline (ICRG after RewardGen) names its earlier stages in ``needs``: each
+    ``(flag, runs)`` passes the checkpoints of the same training seed of ``runs`` as ``flag``'s value (one path,
+    or a list when ``runs`` has several). Such a run is trained after the runs it needs, and again whenever
+    one of them is.
+    """
 
     name: str  # a table row; no '=' or ',' (``icprl evaluate --run NAME=CONFIG:CKPT,CKPT``)
     configs: tuple[str, ...]
     overrides: tuple[str, ...] = ()
     seeds: tuple[int, ...] | None = None  # this run's training seeds, whatever the command's ``--seeds``
+    needs: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    evaluated: bool = True  # False: an earlier stage that is no policy (RewardGen): trained, not deployed
+    checkpoint: str = "last"  # the checkpoint the record keeps: "last", or "best" (the fit's monitored best)
 
 
 @dataclass(frozen=True)
@@ -87,6 +96,49 @@ UNIFORM_STATES = "configs/overlays/uniform_states.yaml"
 # 400 contexts per goal (4× the paper-recipe configs' data), 2 epochs = 2,000 steps, held-out rollouts every 250
 LABEL_INFORMATIVE = ("--data.init_args.setting.init_args.trajectories_per_task", "400",
                      "--trainer.val_check_interval", "250")
+
+
+# DarkRoom T-PRL at 10× the configs' 60 trajectory pairs per goal (issue 17), at the configs' optimizer steps:
+# every epoch is 300 batches drawn from the larger dataset
+TPRL_SCALE = ("--data.init_args.setting.init_args.trajectories_per_task", "600", "--trainer.limit_train_batches", "300")
+
+
+def _dit_sweep_runs() -> tuple[Run, ...]:
+    """DIT on true rewards: η at γ = 0.95, a longer horizon γ = 0.99 at η = 0.3, and the uncentred advantages of
+    before issue 17 (5 fits: what one seed of the sweep costs on 2 cores in about an hour)."""
+    def dit(name: str, eta: str, gamma: str, center: str = "true") -> Run:
+        return Run(name, ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, "--model.init_args.eta", eta,
+                                                          "--model.init_args.gamma", gamma,
+                                                          "--model.init_args.center_advantages", center))
+    return (dit("uncentred eta1 g0.95", "1.0", "0.95", "false"),
+            *(dit(f"eta{e} g0.95", e, "0.95") for e in ("1.0", "0.3", "0.1")),
+            dit("eta0.3 g0.99", "0.3", "0.99"))
+
+
+# DIT's η and γ picked by darkroom_dit_sweep (DIT on true rewards), for DIT and ICRG alike
+DIT_PICK = ("--model.init_args.eta", "0.3", "--model.init_args.gamma", "0.95")
+FOLDS = 2
+REWARD_GEN = "configs/reward_gen_darkroom.yaml"
+
+
+def _tprl_runs() -> tuple[Run, ...]:
+    """ICRG's stages beside their oracles: RewardGen on all training goals and on each fold's complement, ICRG on
+    in-sample and on cross-fitted labels, DIT on true rewards, DP²T on the same pairs; the paper's causal
+    RewardGen is measured (``scripts/reward_gen_quality.py``), not deployed."""
+    folds = tuple(f"RewardGen fold{i}" for i in range(FOLDS))
+    icrg = ("configs/icrg_darkroom.yaml",)
+    stage1 = ("--model.init_args.reward_gen_checkpoint", ("RewardGen",))
+    return (Run("RewardGen", (REWARD_GEN,), TPRL_SCALE, evaluated=False, checkpoint="best"),
+            *(Run(name, (REWARD_GEN,), (*TPRL_SCALE, "--data.init_args.folds", str(FOLDS),
+                                        "--data.init_args.holdout_fold", str(i)), evaluated=False, checkpoint="best")
+              for i, name in enumerate(folds)),
+            Run("RewardGen causal", (REWARD_GEN,), (*TPRL_SCALE, "--model.init_args.pair_source", "context_causal"),
+                evaluated=False, checkpoint="best"),
+            Run("ICRG in-sample labels", icrg, (*TPRL_SCALE, *DIT_PICK), needs=(stage1,)),
+            Run("ICRG cross-fitted labels", icrg, (*TPRL_SCALE, *DIT_PICK),
+                needs=(stage1, ("--model.init_args.cross_fit_checkpoints", folds))),
+            Run("DIT true rewards", ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, *DIT_PICK)),
+            Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
 
 
 BETAS, LAMBDAS = ("1", "0.3", "0.1", "0.03"), ("0.25", "0.5", "0.75", "1")
@@ -185,6 +237,16 @@ TABLES = {t.name: t for t in (
     Table("darkroom_lambda_beta", "ICPO on DarkRoom I-PRL: β × λ", _lambda_beta_runs(), contexts=("own",),
           eval_seeds=(0,),
           budget="≈ 2.5 min per fit on 1 core of 2 busy ones; 24 fits with --seeds 0", figure="lambda_beta"),
+    Table("darkroom_dit_sweep", "DIT on true rewards, DarkRoom T-PRL trajectories (600 pairs per goal): η and γ",
+          _dit_sweep_runs(), contexts=("own",), eval_seeds=(0, 1),
+          budget="≈ 11 min per fit on 1 idle core; 5 fits with --seeds 0"),
+    Table("darkroom_tprl", "DarkRoom T-PRL (600 pairs per goal): ICRG's stages against their oracles, DP²T",
+          _tprl_runs(), budget="≈ 4–10 min per fit on 1 core of 2 busy ones; 8 runs × seeds, RewardGen stages first"),
+    Table("metaworld_reward_gen", "Meta-World Reach T-PRL: RewardGen scoring another pair vs its own pair causally",
+          (Run("RewardGen", ("configs/reward_gen_metaworld.yaml",), evaluated=False, checkpoint="best"),
+           Run("RewardGen causal", ("configs/reward_gen_metaworld.yaml",),
+               ("--model.init_args.pair_source", "context_causal"), evaluated=False, checkpoint="best")),
+          budget="≈ 4 min per fit on 1 core; measured by scripts/reward_gen_quality.py, not deployed"),
     Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
           evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS,
           eval_seeds=(0,), budget="≈ 2–4 min per fit on 1 core"),
@@ -206,22 +268,45 @@ TABLES = {t.name: t for t in (
 )}
 
 
-def fit_command(run: Run, seed: int, root: Path) -> list[str]:
-    """``icprl fit`` of one run and training seed, logging to CSV in ``<root>/<run>-seed<s>/version_0``."""
+def fit_command(run: Run, seed: int, root: Path, needed: dict[str, str] | None = None) -> list[str]:
+    """``icprl fit`` of one run and training seed, logging to CSV in ``<root>/<run>-seed<s>/version_0``;
+    ``needed`` maps each run of ``run.needs`` to its checkpoint for this seed."""
     configs = [arg for config in run.configs for arg in ("--config", config)]
-    return ["icprl", "fit", *configs, *run.overrides, "--seed_everything", str(seed),
+    stages = []
+    for flag, names in run.needs:
+        paths = [(needed or {})[name] for name in names]
+        stages += [flag, paths[0] if len(names) == 1 else "[" + ",".join(paths) + "]"]
+    return ["icprl", "fit", *configs, *run.overrides, *stages, "--seed_everything", str(seed),
             "--trainer.logger", "lightning.pytorch.loggers.CSVLogger", "--trainer.logger.init_args.save_dir",
             str(root), "--trainer.logger.init_args.name", f"{slug(run.name)}-seed{seed}",
             "--trainer.default_root_dir", str(root)]
 
 
-def fit_inputs(run: Run, command: list[str]) -> str:
-    """Digest of what a fit's result depends on that this command controls: its arguments and the text of its
-    config files (the code is the repository's: a table is remade from one commit)."""
+def fit_inputs(run: Run, command: list[str], needed_inputs: tuple[str, ...] = ()) -> str:
+    """Digest of what a fit's result depends on that this command controls: its arguments, the text of its
+    config files and the digests of the earlier stages it needs (the code is the repository's: a table is
+    remade from one commit)."""
     digest = hashlib.sha256(shlex.join(command).encode())
     for config in run.configs:
         digest.update(b"\0" + Path(config).read_bytes())
+    for inputs in needed_inputs:
+        digest.update(b"\0" + inputs.encode())
     return digest.hexdigest()
+
+
+def stages(runs: tuple[Run, ...]) -> list[list[Run]]:
+    """The runs in the order they can be trained: each stage only needs runs of earlier stages."""
+    names = {run.name for run in runs}
+    order, placed = [], set()
+    while len(placed) < len(runs):
+        ready = [r for r in runs if r.name not in placed and all(n in placed for _, ns in r.needs for n in ns)]
+        if not ready:
+            missing = {n for r in runs for _, ns in r.needs for n in ns} - names
+            raise ValueError(f"runs need {sorted(missing)}, which the table lacks" if missing else
+                             "the runs' needs form a cycle")
+        order.append(ready)
+        placed.update(r.name for r in ready)
+    return order
 
 
 def learning_curve(checkpoint: str) -> list[dict[str, float]]:
@@ -240,6 +325,26 @@ def learning_curve(checkpoint: str) -> list[dict[str, float]]:
                 if value and len(parts) == 4 and parts[0] == "val" and parts[3] == "return":
                     points.setdefault(int(row["step"]), {"step": int(row["step"])})[parts[2]] = float(value)
     return [points[s] for s in sorted(points)]
+
+
+def final_epoch_means(checkpoint: str) -> dict[str, float]:
+    """Mean of every ``train/`` metric a fit logged in its last epoch (its CSV log beside the checkpoint), e.g.
+    DIT's ``clipped_fraction`` and ``weight_std`` at the end of its policy phase; empty without a log."""
+    import csv
+
+    path = Path(checkpoint).parent.parent / "metrics.csv"
+    if not path.exists():
+        return {}
+    with open(path) as f:
+        rows = [row for row in csv.DictReader(f) if row.get("epoch")]
+    last = max((int(row["epoch"]) for row in rows), default=None)
+    values: dict[str, list[float]] = {}
+    for row in rows:
+        if int(row["epoch"]) == last:
+            for key, value in row.items():
+                if key.startswith("train/") and value:
+                    values.setdefault(key[len("train/"):], []).append(float(value))
+    return {key: sum(v) / len(v) for key, v in sorted(values.items())}
 
 
 def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -> None:
@@ -275,7 +380,7 @@ def evaluate_command(table: Table, evaluation: Evaluation, checkpoints: dict[str
                *evaluation.flags, "--out", str(out_dir / f"{table.name}{evaluation.suffix}")]
     if table.contexts != ("own",):
         command += ["--contexts", *table.contexts]
-    for run in table.runs:
+    for run in (r for r in table.runs if r.evaluated):
         # the first seed's saved config.yaml names the run's exact dataset (configs, overlays and overrides)
         config = Path(checkpoints[run.name][0]).parent.parent / "config.yaml"
         command += ["--run", f"{run.name}={config}:{','.join(checkpoints[run.name])}"]
@@ -284,7 +389,7 @@ def evaluate_command(table: Table, evaluation: Evaluation, checkpoints: dict[str
     return command
 
 
-def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: int) -> dict:
+def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: int, which: str = "last") -> dict:
     env = {**os.environ, "OMP_NUM_THREADS": str(threads), "WANDB_MODE": os.environ.get("WANDB_MODE", "disabled")}
     start = time.time()
     with open(log, "w") as out:
@@ -293,53 +398,91 @@ def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: 
     if code != 0:
         raise RuntimeError(f"{shlex.join(command)} failed (exit {code}); its log: {log}")
     last = [line.split(":", 1)[1].strip() for line in log.read_text().splitlines()
-            if line.startswith("last checkpoint:")]
+            if line.startswith(f"{which} checkpoint:")]
     if not last:
-        raise RuntimeError(f"{shlex.join(command)} printed no 'last checkpoint:' line; its log: {log}")
+        raise RuntimeError(f"{shlex.join(command)} printed no '{which} checkpoint:' line; its log: {log}")
     result = {"command": shlex.join(command), "inputs_sha256": inputs, "checkpoint": last[-1],
               "seconds": round(time.time() - start, 1)}
     write_json_atomic(record, result)
     return result
 
 
+def needed_runs(table: Table, only: list[str]) -> Table:
+    """``table`` cut to the runs named in ``only`` and the earlier stages they need."""
+    by_name = {run.name: run for run in table.runs}
+    unknown = sorted(set(only) - set(by_name))
+    if unknown:
+        raise ValueError(f"--only {unknown}: no such run in {table.name}; its runs: {list(by_name)}")
+    keep, todo = set(), list(only)
+    while todo:
+        name = todo.pop()
+        if name not in keep:
+            keep.add(name)
+            todo += [n for _, names in by_name[name].needs for n in names]
+    return replace(table, runs=tuple(run for run in table.runs if run.name in keep))
+
+
 def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Path, refit: bool = False,
-              dry_run: bool = False, threads: int | None = None) -> dict:
+              dry_run: bool = False, threads: int | None = None, only: list[str] | None = None) -> dict:
+    """Train every run of ``table`` per seed (resuming recorded fits), then evaluate and write the outputs; with
+    ``only``, train just those runs and what they need, and stop there (the records serve the full command)."""
+    if only:
+        table = needed_runs(table, only)
     root = work / table.name
     root.mkdir(parents=True, exist_ok=True)
     threads = threads or max(1, (os.cpu_count() or 1) // jobs)
-    todo, done = [], {}
+    done: dict[tuple[str, int], dict] = {}
     run_seeds = {run.name: list(run.seeds or seeds) for run in table.runs}
     for run in table.runs:
-        for seed in run_seeds[run.name]:
-            record = root / f"{slug(run.name)}-seed{seed}.json"
-            command = fit_command(run, seed, root / "runs")
-            inputs = fit_inputs(run, command)
-            recorded = json.loads(record.read_text()) if record.exists() and not refit else None
-            if recorded is not None and recorded.get("inputs_sha256") == inputs:
-                done[(run.name, seed)] = recorded
-            else:
-                if recorded is not None:
-                    print(f"{run.name} seed {seed}: its command or configs changed since {record} was "
-                          "written; training it again", flush=True)
-                todo.append((run.name, seed, command, inputs, root / f"{slug(run.name)}-seed{seed}.log", record))
-    if dry_run:
-        for *_, command, _, _, _ in todo:
-            print(shlex.join(command))
-        return {}
+        for _, names in run.needs:
+            for name in names:
+                if not set(run_seeds[run.name]) <= set(run_seeds[name]):
+                    raise ValueError(f"{run.name} needs {name} at training seeds {run_seeds[run.name]}, "
+                                     f"which has only {run_seeds[name]}")
     start = time.time()
-    print(f"{table.name}: {len(todo)} fits to run ({len(done)} done earlier), {jobs} at a time", flush=True)
-    with ThreadPoolExecutor(max_workers=jobs) as pool:
-        futures = {(name, seed): pool.submit(_run_fit, command, inputs, log, record, threads)
-                   for name, seed, command, inputs, log, record in todo}
-        for key, future in futures.items():
-            done[key] = future.result()
-            print(f"  {key[0]} seed {key[1]}: {done[key]['seconds']} s -> {done[key]['checkpoint']}", flush=True)
+    for stage in stages(table.runs):
+        todo = []
+        for run in stage:
+            for seed in run_seeds[run.name]:
+                needed = [done.get((name, seed)) for _, names in run.needs for name in names]
+                if dry_run and None in needed:  # an earlier stage still to train: its checkpoint is unknown
+                    print(f"# {run.name} seed {seed}: after the runs it needs", flush=True)
+                    continue
+                paths = {name: done[(name, seed)]["checkpoint"] for _, names in run.needs for name in names}
+                record = root / f"{slug(run.name)}-seed{seed}.json"
+                command = fit_command(run, seed, root / "runs", paths)
+                inputs = fit_inputs(run, command, tuple(n["inputs_sha256"] for n in needed))
+                recorded = json.loads(record.read_text()) if record.exists() and not refit else None
+                if recorded is not None and recorded.get("inputs_sha256") == inputs:
+                    done[(run.name, seed)] = recorded
+                else:
+                    if recorded is not None:
+                        print(f"{run.name} seed {seed}: its command, configs or earlier stages changed since "
+                              f"{record} was written; training it again", flush=True)
+                    todo.append((run, seed, command, inputs, root / f"{slug(run.name)}-seed{seed}.log", record))
+        if dry_run:
+            for _, _, command, *_ in todo:
+                print(shlex.join(command))
+            continue
+        print(f"{table.name}: {len(todo)} fits to run ({len(done)} done), {jobs} at a time", flush=True)
+        with ThreadPoolExecutor(max_workers=jobs) as pool:
+            futures = {(run.name, seed): pool.submit(_run_fit, command, inputs, log, record, threads, run.checkpoint)
+                       for run, seed, command, inputs, log, record in todo}
+            for key, future in futures.items():
+                done[key] = future.result()
+                print(f"  {key[0]} seed {key[1]}: {done[key]['seconds']} s -> {done[key]['checkpoint']}", flush=True)
+    if dry_run:
+        return {}
     fit_seconds = round(time.time() - start, 1)
+    if only:
+        print(f"{table.name}: trained {sorted(only)} and what they need in {fit_seconds} s; run the command without "
+              "--only to evaluate the whole table", flush=True)
+        return {"fits": {f"{n}-seed{s}": r for (n, s), r in sorted(done.items())}, "fit_wall_seconds": fit_seconds}
     checkpoints = {run.name: [done[(run.name, s)]["checkpoint"] for s in run_seeds[run.name]] for run in table.runs}
     evaluations = []
     from icprl_lightning.evaluation.command import main as evaluate_main
 
-    for evaluation in table.evaluations:
+    for evaluation in table.evaluations if any(run.evaluated for run in table.runs) else ():
         command = evaluate_command(table, evaluation, checkpoints, out_dir)
         began = time.time()
         evaluate_main(command[2:])
@@ -347,10 +490,12 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
     if table.figure:
         FIGURES[table.figure](table, out_dir)
     curves = {run.name: {str(s): learning_curve(done[(run.name, s)]["checkpoint"]) for s in run_seeds[run.name]}
-              for run in table.runs}
+              for run in table.runs if run.evaluated}
     curve_figure(table, curves, out_dir / f"{table.name}_curve.png")
+    final_metrics = {f"{run.name}-seed{s}": final_epoch_means(done[(run.name, s)]["checkpoint"])
+                     for run in table.runs for s in run_seeds[run.name]}
     summary = {"table": table.name, "training_seeds": seeds, "jobs": jobs, "threads_per_fit": threads,
-               "fit_wall_seconds": fit_seconds,
+               "fit_wall_seconds": fit_seconds, "final_epoch_train_metrics": final_metrics,
                "fits": {f"{n}-seed{s}": r for (n, s), r in sorted(done.items())}, "evaluations": evaluations,
                "learning_curves": curves, "total_wall_seconds": round(time.time() - start, 1)}
     write_json_atomic(out_dir / f"{table.name}_reproduce.json", summary)
@@ -371,6 +516,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--out", default="docs/results", help="where the tables and figures go")
     parser.add_argument("--refit", action="store_true", help="train again even where a fit is recorded")
     parser.add_argument("--dry-run", action="store_true", help="print the fit commands, run nothing")
+    parser.add_argument("--only", nargs="+", metavar="RUN", help="train only these runs (and the earlier stages "
+                        "they need), evaluate nothing")
     args = parser.parse_args(argv)
     if args.list or args.table is None:
         for table in TABLES.values():
@@ -379,4 +526,4 @@ def main(argv: list[str] | None = None) -> dict:
     if args.jobs < 1:
         parser.error(f"--jobs must be ≥ 1, got {args.jobs}")
     return reproduce(TABLES[args.table], args.seeds, args.jobs, Path(args.work), Path(args.out), args.refit,
-                     args.dry_run, args.threads)
+                     args.dry_run, args.threads, args.only)

@@ -61,7 +61,7 @@ def test_preference_batches_carry_no_reward_goal_or_advantage(tiny_ipref):
     """The reward-free invariant: an I-PRL batch holds comparisons, states and (for DP²T) action labels only."""
     batch = next(iter(tiny_ipref.train_dataloader()))
     assert set(batch) == {"states", "actions", "alt_actions", "preferred", "query_states", "optimal_actions",
-                          "pair_states", "pair_actions", "pair_alt_actions", "pair_preferred"}
+                          "pair_states", "pair_actions", "pair_alt_actions", "pair_preferred", "task"}
     for key in batch:
         assert not any(word in key for word in FORBIDDEN), key
     for suite in tiny_ipref.evaluation_suites():

@@ -56,7 +56,7 @@ METHOD_CASES = (
        ("DP2TModule", "context_kind", "nonsense"), ("RewardGenModule", "pair_source", "elsewhere")]
     + [(m, k, v) for m in ("DITModule", "ICRGModule")
        for k, v in (("gamma", -0.1), ("gamma", 1.5), ("eta", 0.0), ("eta", -1.0), ("max_weight", 0.0),
-                    ("value_epochs", -1))]
+                    ("value_epochs", -1), ("center_advantages", "yes"))]
 )
 
 
@@ -160,6 +160,8 @@ DATAMODULE_CASES = [
     ("family", lambda: dict(family=LinearDuelingBanditFamily())),  # an MDP setting on a bandit
     ("family", lambda: dict(setting=BanditDuels())),  # the bandit setting on DarkRoom
     ("setting", lambda: dict(setting="StepPreferences")),
+    ("folds", lambda: dict(folds=0)),
+    ("holdout_fold", lambda: dict(folds=2, holdout_fold=2)),
 ]
 
 

@@ -136,7 +136,7 @@ def test_preference_batches_carry_no_reward_goal_or_advantage(ipref):
     ipref.setup("fit")
     batch = next(iter(ipref.train_dataloader()))
     assert set(batch) == {"states", "actions", "alt_actions", "preferred", "pair_states", "pair_actions",
-                          "pair_alt_actions", "pair_preferred"}
+                          "pair_alt_actions", "pair_preferred", "task"}
     assert not [k for k in batch if any(word in k for word in FORBIDDEN)]
     assert torch.all(batch["states"][..., GOAL_SLICE] == 0) and torch.all(batch["pair_states"][..., GOAL_SLICE] == 0)
     assert batch["actions"].shape == (4, H, 4) and batch["actions"].dtype == torch.float32

@@ -132,7 +132,7 @@ def test_pairs_replay_in_the_env_and_queries_are_visited_states_with_expert_labe
 def test_preference_batches_and_eval_contexts_are_reward_free(tprl):
     tprl.setup("fit")
     batch = next(iter(tprl.train_dataloader()))
-    assert set(batch) == {*PAIR, *(f"pair_{k}" for k in PAIR), "query_states", "optimal_actions"}
+    assert set(batch) == {*PAIR, *(f"pair_{k}" for k in PAIR), "query_states", "optimal_actions", "task"}
     assert not [k for k in batch if any(word in k for word in FORBIDDEN)]
     assert batch["states_a"].shape == (4, H, 39) and batch["actions_b"].dtype == torch.float32
     assert batch["preferred"].shape == (4,) and set(batch["preferred"].tolist()) <= {0.0, 1.0}
@@ -141,7 +141,7 @@ def test_preference_batches_and_eval_contexts_are_reward_free(tprl):
     stored = [f for f in tprl.load().manifest["files"] if not f.startswith("tasks/")]  # tasks: evaluation only
     assert stored and not any(w in f for f in stored for w in FORBIDDEN)  # nothing on disk either
     without_labels = reach_data("trajectory_preference", root_dir=tprl.root_dir, **TINY)
-    assert set(next(iter(without_labels.val_dataloader()))) == set(PAIR)
+    assert set(next(iter(without_labels.val_dataloader()))) == {*PAIR, "task"}
     for suite in tprl.evaluation_suites():
         ctx = suite.context
         assert isinstance(ctx, TrajectoryPreferenceContext) and ctx.behavior_states.shape == (4, H, 39)
@@ -188,7 +188,7 @@ def test_reward_kind_holds_the_same_trajectories_with_true_rewards(tprl, tprl_re
             np.testing.assert_array_equal(pref[split][k], rew[split][k])
     assert "preferred" not in rew["train"] and "rewards_a" in rew["train"]
     batch = next(iter(tprl_rewards.train_dataloader()))
-    assert set(batch) == {"states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b"}
+    assert set(batch) == {"states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b", "task"}
     assert torch.all(batch["rewards_a"] < 0)  # −‖tcp − goal‖
     suite = tprl_rewards.evaluation_suites()[0]
     assert isinstance(suite.context, RewardTrajectoryContext)

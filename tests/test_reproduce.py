@@ -7,7 +7,19 @@ import json
 import pytest
 from factories import REPO, tiny_darkroom_args
 
-from icprl_lightning.reproduce import TABLES, Evaluation, Run, Table, fit_command, fit_inputs, main, reproduce, slug
+from icprl_lightning.reproduce import (
+    TABLES,
+    Evaluation,
+    Run,
+    Table,
+    fit_command,
+    fit_inputs,
+    main,
+    needed_runs,
+    reproduce,
+    slug,
+    stages,
+)
 
 
 def test_every_table_names_existing_configs_and_lists(capsys):
@@ -98,3 +110,53 @@ def test_teacher_noise_figure_reads_regret_or_return(tmp_path, table_name, metri
     (tmp_path / f"{table_name}.json").write_text(json.dumps({"results": results}))
     FIGURES[table.figure](table, tmp_path)
     assert (tmp_path / f"{table_name}_vs_noise.png").stat().st_size > 0
+
+
+PIPELINE = (Run("policy", ("p.yaml",), needs=(("--model.init_args.reward", ("reward",)),
+                                                ("--model.init_args.folds", ("fold0", "fold1")))),
+            Run("fold0", ("r.yaml",), evaluated=False), Run("reward", ("r.yaml",), evaluated=False),
+            Run("fold1", ("r.yaml",), evaluated=False), Run("baseline", ("b.yaml",)))
+
+
+def test_a_later_stage_trains_after_the_runs_it_needs_and_gets_their_checkpoints(tmp_path):
+    assert [[r.name for r in stage] for stage in stages(PIPELINE)] == [["fold0", "reward", "fold1", "baseline"],
+                                                                        ["policy"]]
+    paths = {"reward": "r/best.ckpt", "fold0": "f0/best.ckpt", "fold1": "f1/best.ckpt"}
+    command = fit_command(PIPELINE[0], 1, tmp_path, paths)
+    assert command[command.index("--model.init_args.reward") + 1] == "r/best.ckpt"
+    assert command[command.index("--model.init_args.folds") + 1] == "[f0/best.ckpt,f1/best.ckpt]"
+    # its record goes stale when an earlier stage is retrained, even at the same checkpoint path
+    (tmp_path / "p.yaml").write_text("model: {}\n")
+    run = Run("policy", (str(tmp_path / "p.yaml"),), needs=PIPELINE[0].needs)
+    assert fit_inputs(run, command, ("a", "b", "c")) != fit_inputs(run, command, ("a", "b", "changed"))
+    with pytest.raises(ValueError, match="cycle"):
+        stages((Run("x", ("x.yaml",), needs=(("--a", ("y",)),)), Run("y", ("y.yaml",), needs=(("--b", ("x",)),))))
+    with pytest.raises(ValueError, match="lacks"):
+        stages((Run("x", ("x.yaml",), needs=(("--a", ("nowhere",)),)),))
+
+
+def test_only_keeps_the_named_runs_and_what_they_need():
+    table = Table("pipeline", "pipeline", PIPELINE)
+    assert {r.name for r in needed_runs(table, ["policy"]).runs} == {"policy", "reward", "fold0", "fold1"}
+    assert [r.name for r in needed_runs(table, ["fold1"]).runs] == ["fold1"]
+    with pytest.raises(ValueError, match="no such run"):
+        needed_runs(table, ["ICRG"])
+
+
+def test_the_tprl_table_passes_each_seeds_reward_models_to_icrg(tmp_path, capsys):
+    """Dry run with the RewardGen stages recorded: ICRG's commands name the same seed's checkpoints."""
+    table = TABLES["darkroom_tprl"]
+    work = tmp_path / "work"
+    (work / table.name).mkdir(parents=True)
+    for run in stages(table.runs)[0]:
+        command = fit_command(run, 0, work / table.name / "runs")
+        record = {"command": " ".join(command), "inputs_sha256": fit_inputs(run, command),
+                  "checkpoint": f"/ckpt/{slug(run.name)}-seed0/best.ckpt"}
+        (work / table.name / f"{slug(run.name)}-seed0.json").write_text(json.dumps(record))
+    reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("icprl fit")]
+    assert len(lines) == 2 and all("icrg_darkroom.yaml" in line for line in lines)  # only the ICRG stage is left
+    assert all("--model.init_args.reward_gen_checkpoint /ckpt/RewardGen-seed0/best.ckpt" in line for line in lines)
+    crossfit = [line for line in lines if "cross_fit_checkpoints" in line]
+    assert len(crossfit) == 1
+    assert "[/ckpt/RewardGen_fold0-seed0/best.ckpt,/ckpt/RewardGen_fold1-seed0/best.ckpt]" in crossfit[0]

@@ -71,7 +71,7 @@ def test_batches_and_eval_contexts_carry_no_reward(tprl):
     """The reward-free invariant: T-PRL batches hold states, actions, labels (and DP²T's action labels) only."""
     batch = next(iter(tprl.train_dataloader()))
     pair = ("states_a", "actions_a", "states_b", "actions_b", "preferred")
-    assert set(batch) == {*pair, *(f"pair_{k}" for k in pair), "query_states", "optimal_actions"}
+    assert set(batch) == {*pair, *(f"pair_{k}" for k in pair), "query_states", "optimal_actions", "task"}
     assert batch["states_a"].shape == (8, 100, 2) and batch["preferred"].shape == (8,)
     for key in batch:
         assert not any(word in key for word in FORBIDDEN), key
@@ -102,7 +102,7 @@ def test_reward_kind_holds_the_same_trajectories_with_true_rewards(tprl, tprl_re
     nxt = transition(s, np.asarray(rew["train"]["actions_a"]).astype(np.int64), 10)
     np.testing.assert_array_equal(rew["train"]["rewards_a"], step_reward(nxt, goals[:, None]))
     batch = next(iter(tprl_rewards.train_dataloader()))
-    assert set(batch) == {"states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b"}
+    assert set(batch) == {"states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b", "task"}
     suite = tprl_rewards.evaluation_suites()[0]
     np.testing.assert_array_equal(suite.context.states.numpy(), rew["eval_low"]["behavior_states"])
 

@@ -33,6 +33,20 @@ This module owns what every dataset shares:
   training epoch drops the last ``len % world_size`` rows (no row twice); validation pads to equal
   shards, as Lightning does, so every rank runs the same number of steps. One process draws exactly
   the batches it always did.
+* Every batch of an MDP family carries ``task`` (int64 (B,)), the training-task index ``row // per_task``
+  of each row (bandit batches do not: their val problems are not the training ones, and nothing reads it).
+* Cross-fitting (ICRG's labels, ``methods/icrg.py``): ``folds=k, holdout_fold=i`` leaves the rows of every
+  training task t with ``t % k == i`` out of the train *and* val loaders, so a RewardGen fitted on them has
+  never seen fold i's tasks and can label them as it would label an unseen task. The dataset on disk, its
+  directory and hash do not change (the knobs only choose rows; they are not part of ``generator_config``).
+  The sampler draws positions among the kept rows and maps them to rows (``KeptRows``), so under DDP the
+  ranks still deal disjoint shards of the kept rows; a ``pairs`` partner is another row of the same task,
+  which is kept or left out whole. The fold settings go into every checkpoint of a fit as this
+  DataModule's ``state_dict`` (Lightning stores it under the key ``"PreferenceDataModule"``), which is
+  how ICRG checks that its ``cross_fit_checkpoints`` hold out fold 0, 1, ..., k − 1 of k in that order.
+  Not ``save_hyperparameters``: that would store the family and setting objects as well. The record sits
+  beside the checkpoint's checksummed part (``checkpoints.py``); resuming a fit with other fold settings
+  is refused (validating or testing with others is not).
 * The evaluation suites of the held-out tasks, built by the setting from the stored evaluation splits.
 """
 
@@ -41,10 +55,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from collections.abc import Iterator, Sized
 from pathlib import Path
 from typing import Any
 
 import lightning as L
+import numpy as np
 import torch
 from torch.utils.data import BatchSampler, DataLoader, DistributedSampler, RandomSampler, Sampler, SequentialSampler
 
@@ -79,6 +95,47 @@ class EpochBatchSampler(BatchSampler):
             self.sampler.set_epoch(epoch)
 
 
+class KeptRows(Sampler[int]):
+    """The rows at the positions ``sampler`` draws among ``rows`` (the kept rows of a held-out fold).
+
+    The inner sampler (random, sequential or a rank's ``DistributedSampler``) sees only the kept rows, so
+    shuffles, epochs and DDP shards work as for the whole dataset; ``set_epoch`` is passed on.
+    """
+
+    def __init__(self, sampler: Sampler[int], rows: np.ndarray) -> None:
+        self.sampler = sampler
+        self.rows = rows
+
+    def __iter__(self) -> Iterator[int]:
+        return (int(self.rows[i]) for i in self.sampler)
+
+    def __len__(self) -> int:
+        return len(self.sampler)
+
+    def set_epoch(self, epoch: int) -> None:
+        if hasattr(self.sampler, "set_epoch"):
+            self.sampler.set_epoch(epoch)
+
+
+def check_folds(setting: Setting, folds: Any, holdout_fold: Any) -> None:
+    """``folds`` >= 1; ``holdout_fold`` in [0, folds), given exactly when folds >= 2; not with BanditDuels."""
+    check_int("PreferenceDataModule", "folds", folds, 1)
+    if holdout_fold is None:
+        if folds > 1:
+            raise HyperparameterError(f"PreferenceDataModule: folds={folds} needs holdout_fold in [0, {folds}) (the "
+                                      "fold of training tasks to leave out); without it every task is served")
+        return
+    if folds < 2:
+        raise HyperparameterError(f"PreferenceDataModule: holdout_fold needs folds >= 2 (cross-fitting leaves out "
+                                  f"one of k >= 2 folds of the training tasks), got holdout_fold={holdout_fold!r} "
+                                  f"with folds={folds}")
+    check_int("PreferenceDataModule", "holdout_fold", holdout_fold, 0, folds - 1)
+    if isinstance(setting, BanditDuels):
+        raise HyperparameterError("PreferenceDataModule: holdout_fold must be None with BanditDuels (its val "
+                                  "split holds other problems than the training ones, so there is no fold of "
+                                  f"training tasks to leave out of both), got {holdout_fold}")
+
+
 class PreferenceDataModule(L.LightningDataModule):
     """Generated in-context datasets of ``setting`` on ``family``; see the module docstring.
 
@@ -92,11 +149,15 @@ class PreferenceDataModule(L.LightningDataModule):
         overwrite: regenerate even when the dataset exists.
         verify_checksums: check every file's SHA-256 when loading.
         progress: progress bars during generation.
+        folds: number of folds k of the training tasks for cross-fitting (task t is in fold t % k).
+        holdout_fold: the fold i whose tasks are left out of the train and val loaders (needs folds >= 2);
+            None serves every task.
     """
 
     def __init__(self, family: Family, setting: Setting, data_dir: str | None = None,
                  root_dir: str = "data", batch_size: int = 32, pairs: bool = False, query_labels: bool = False,
-                 overwrite: bool = False, verify_checksums: bool = True, progress: bool = True) -> None:
+                 overwrite: bool = False, verify_checksums: bool = True, progress: bool = True, folds: int = 1,
+                 holdout_fold: int | None = None) -> None:
         if not isinstance(family, Family):
             raise HyperparameterError(f"PreferenceDataModule: family must be a Family (families/base.py), got "
                                       f"{type(family).__name__}")
@@ -122,6 +183,7 @@ class PreferenceDataModule(L.LightningDataModule):
         if query_labels and isinstance(setting, BanditDuels):
             raise HyperparameterError("PreferenceDataModule: query_labels must be false with BanditDuels (a bandit "
                                       "has no query states nor optimal-action labels), got True")
+        check_folds(setting, folds, holdout_fold)
         super().__init__()
         self.family = family
         self.setting = setting
@@ -133,6 +195,8 @@ class PreferenceDataModule(L.LightningDataModule):
         self.overwrite = overwrite
         self.verify_checksums = verify_checksums
         self.progress = progress
+        self.folds = folds
+        self.holdout_fold = holdout_fold
         self.dataset: StoredDataset | None = None
         # what the callbacks may read (validation.data_offers): rollouts (MDP settings), weak regret
         # (bandits), held-out pairs (T-PRL pairs)
@@ -233,16 +297,49 @@ class PreferenceDataModule(L.LightningDataModule):
                 raise DatasetError(f"{e}. To fix: {self.regenerate_hint}.") from None
             self._values_checked = data
 
+    # ---- fold settings in checkpoints (see the module docstring) ---------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        return {"folds": self.folds, "holdout_fold": self.holdout_fold}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """Resuming a fit (``--ckpt_path``) with other fold settings is refused: the run would switch the
+        tasks it trains on midway. Validating or testing a checkpoint on any rows is fine."""
+        saved = (state_dict.get("folds", 1), state_dict.get("holdout_fold"))
+        fitting = self.trainer is not None and self.trainer.state.fn == "fit"
+        if fitting and saved != (self.folds, self.holdout_fold):
+            raise HyperparameterError(
+                f"PreferenceDataModule: the checkpoint was trained with folds={saved[0]}, holdout_fold={saved[1]}; "
+                f"this data has folds={self.folds}, holdout_fold={self.holdout_fold}: resume with the same "
+                "--data.init_args.folds and --data.init_args.holdout_fold")
+
     # ---- batches -------------------------------------------------------------------------------------
+    def kept_rows(self, split: str) -> np.ndarray | None:
+        """The rows of ``split`` the loaders serve: None (all) without ``holdout_fold``, else those of the tasks
+        outside the held-out fold, in row order."""
+        if self.holdout_fold is None:
+            return None
+        per_task = self.trajectories_per_task[0 if split == "train" else 1]
+        task = np.arange(len(self.load()[split][self.setting.batch_fields()[0]])) // per_task
+        n_tasks = int(task[-1]) + 1 if len(task) else 0
+        if self.folds > n_tasks:
+            raise HyperparameterError(f"PreferenceDataModule: folds must be <= the number of training tasks "
+                                      f"({n_tasks}), got {self.folds}")
+        return np.flatnonzero(task % self.folds != self.holdout_fold)
+
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         per_task = self.trajectories_per_task[0 if split == "train" else 1]
         data = ContextBatches(self.load()[split], self.setting.batch_fields(), per_task, self.pairs,
-                              self.query_labels, self.setting.pair_fields)
-        return DataLoader(data, sampler=EpochBatchSampler(self._row_sampler(data, shuffle), self.batch_size,
-                                                          drop_last=shuffle), batch_size=None)
+                              self.query_labels, self.setting.pair_fields, tasks=isinstance(self.setting, MDPSetting))
+        rows = self.kept_rows(split)
+        sampler = self._row_sampler(data if rows is None else rows, shuffle)
+        if rows is not None:
+            sampler = KeptRows(sampler, rows)
+        return DataLoader(data, sampler=EpochBatchSampler(sampler, self.batch_size, drop_last=shuffle),
+                          batch_size=None)
 
-    def _row_sampler(self, data: ContextBatches, shuffle: bool) -> Sampler[int]:
-        """Every row in one process; this rank's shard of them under several (see the module docstring)."""
+    def _row_sampler(self, data: Sized, shuffle: bool) -> Sampler[int]:
+        """Every position of ``data`` in one process; this rank's shard of them under several (see the module
+        docstring). ``data`` is the dataset, or the kept rows of a held-out fold (positions into them)."""
         trainer = self.trainer
         world_size = trainer.world_size if trainer is not None else 1
         if world_size == 1:

@@ -15,8 +15,13 @@ noise; conditioning on the other trajectory removes that shortcut.) Every query 
 
 Two phases, as Algorithm DIT: for the first ``value_epochs`` epochs only Q̂ and V̂ learn (``loss`` is
 eq. dit-loss); afterwards only the policy does (``loss`` is eq. dit-optimization), with Q̂ and V̂ frozen.
-Advantages are divided by their batch standard deviation before exp(Â/η) (AWR's normalization), so η
-means the same for true rewards and RewardGen's estimates; the weight is clipped at ``max_weight``.
+Advantages are centred on their batch mean and divided by their batch standard deviation before exp(Â/η)
+(AWR's normalization; ``losses.standardized_advantages``), so η means the same for true rewards and
+RewardGen's estimates; the weight is clipped at ``max_weight``. Without the centring
+(``center_advantages: false``, the behavior before issue 17) an offset of Q̂ over V̂ of a few standard
+deviations clips every weight and DIT becomes behavior cloning. Logged in the policy phase:
+``advantage_offset`` (the raw batch mean of Q̂ − V̂ in units of its std: what centring removes),
+``clipped_fraction``, ``mean_weight`` and ``weight_std`` (the spread of exp(Â/η)).
 
 This module is DIT on true rewards, the reward-supervised baseline (``reward_trajectory`` data); ICRG
 (``methods/icrg.py``) is the same on rewards labeled by RewardGen.
@@ -29,9 +34,9 @@ from torch import Tensor
 
 from icprl_lightning.contexts import RewardTrajectoryContext
 from icprl_lightning.methods.base import InContextModule
-from icprl_lightning.methods.losses import advantage_weighted_loss, dit_value_loss
+from icprl_lightning.methods.losses import advantage_weighted_loss, dit_value_loss, standardized_advantages
 from icprl_lightning.models.estimator import InContextEstimator
-from icprl_lightning.validation import check_int, check_interval, check_positive
+from icprl_lightning.validation import check_choice, check_int, check_interval, check_positive
 
 
 def discounted_returns(rewards: Tensor, gamma: float) -> Tensor:
@@ -56,12 +61,13 @@ class DITModule(InContextModule):
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, gamma: float = 0.95,
                  eta: float = 1.0, max_weight: float = 20.0, value_epochs: int = 2, n_layer: int = 3,
                  n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0) -> None:
+                 weight_decay: float = 0.0, center_advantages: bool = True) -> None:
         owner = type(self).__name__
         check_interval(owner, "gamma", gamma, 0.0, 1.0)
         check_positive(owner, "eta", eta)
         check_positive(owner, "max_weight", max_weight)
         check_int(owner, "value_epochs", value_epochs, 0)
+        check_choice(owner, "center_advantages", center_advantages, (True, False))
         super().__init__("reward_trajectory", state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
                          dropout, lr, weight_decay)
         estimator = dict(context_kind="reward_trajectory", state_dim=state_dim, action_spec=self.action_spec,
@@ -103,8 +109,9 @@ class DITModule(InContextModule):
             return loss, {"value_loss": loss, "advantage_std": (q - v).detach().std()}
         with torch.no_grad():
             q, v = self.values(context, scored)
-            advantage = (q - v) / ((q - v).std() + 1e-6)
+            advantage = standardized_advantages(q, v, center=hp.center_advantages)
         loss = advantage_weighted_loss(self.log_likelihood(context, scored), advantage, hp.eta, hp.max_weight)
         weight = torch.exp(advantage / hp.eta).clamp(max=hp.max_weight)
-        return loss, {"policy_loss": loss, "mean_weight": weight.mean(),
-                      "clipped_fraction": (weight >= hp.max_weight).float().mean()}
+        offset = (q - v).mean() / ((q - v).std() + 1e-6)
+        return loss, {"policy_loss": loss, "mean_weight": weight.mean(), "weight_std": weight.std(),
+                      "clipped_fraction": (weight >= hp.max_weight).float().mean(), "advantage_offset": offset}

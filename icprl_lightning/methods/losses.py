@@ -13,6 +13,9 @@
   −log σ(Σ_h R_ψ(s⁺_h, a⁺_h | D^T) − Σ_h R_ψ(s⁻_h, a⁻_h | D^T)), written for a labeled pair (ξ_a, ξ_b, y).
 * ``dit_value_loss`` — DIT's in-context Q̂ and V̂, paper eq. (dit-loss): (Q̂ − G)² + (V̂ − G)² on discounted
   returns G (the paper's second term lacks its square; the regression is meant).
+* ``standardized_advantages`` — DIT's Â = Q̂ − V̂ (paper eq. dit-advantage), centred and divided by its batch
+  standard deviation, so that η means the same for any reward scale and an offset between Q̂ and V̂ does
+  not push every weight onto its clip.
 * ``advantage_weighted_loss`` — DIT's policy, paper eq. (dit-optimization): −exp(Â/η) log T^R(a | s, D),
   the weight clipped at ``max_weight`` (as in AWR/IQL: one large advantage must not dominate a batch).
 """
@@ -57,6 +60,14 @@ def trajectory_preference_loss(returns_a: Tensor, returns_b: Tensor, preferred: 
 def dit_value_loss(q_values: Tensor, v_values: Tensor, returns: Tensor) -> Tensor:
     """mean (Q̂ − G)² + mean (V̂ − G)² over all (trajectory, step) entries."""
     return (q_values - returns).pow(2).mean() + (v_values - returns).pow(2).mean()
+
+
+def standardized_advantages(q_values: Tensor, v_values: Tensor, center: bool = True) -> Tensor:
+    """(Q̂ − V̂ − mean) / std over the whole batch (the mean only with ``center``); no gradient flows."""
+    advantage = (q_values - v_values).detach()
+    if center:
+        advantage = advantage - advantage.mean()
+    return advantage / (advantage.std() + 1e-6)
 
 
 def advantage_weighted_loss(log_likelihood: Tensor, advantages: Tensor, eta: float, max_weight: float) -> Tensor:

@@ -8,14 +8,20 @@ Which pair is scored (``pair_source``):
   the context. The scored transitions are not in view, so their rewards must come from the task the
   model infers from the context. This is how R_ψ is used: ICRG labels trajectories that are not in its
   context (another pair's in pretraining, the unlabeled behavior trajectory at deployment).
-* ``"context"``: the paper's literal form, the context pair's own transitions. The label is then part of
-  the context of the pair it scores, and matching each query to the winner's tokens fits the loss
-  without inferring the task.
+* ``"context"``: the paper's literal form, the context pair's own transitions, every query seeing the
+  whole context. The label is then part of the context of the pair it scores, and matching each query to
+  the winner's tokens fits the loss without inferring the task: copyable, not a fair test of the form.
+* ``"context_causal"``: the paper's form read causally: the query for step h of either trajectory sees
+  only the context's tokens of steps < h (step 0 sees none), neither the scored transition nor anything
+  later. The rule belongs to R_ψ (``InContextRewardModel(causal=True)``, saved as the hyperparameter
+  ``causal`` that ICRG copies), so ICRG's relabeling and deployment read their pair context the same way:
+  step h of a labeled trajectory sees the context's steps < h. Still not leak-free: s_h continues one of
+  the two trajectories whose steps < h are in view, in their winner/loser slots (``models/estimator.py``).
 
-All 2H transitions of the scored pair are queries that each see the whole context, one pass (the
-paper's "read out at the last time step", see ``models/estimator.py``). Logged: ``loss`` and
-``pair_accuracy`` (summed rewards order the pair as its label does); the held-out tasks' accuracy comes
-from ``HeldOutPairAccuracyCallback``. Each validation epoch stores the mean and std of R_ψ's outputs on
+All 2H transitions of the scored pair are queries in one pass; without the causal rule each sees the
+whole context (the paper's "read out at the last time step", see ``models/estimator.py``). Logged:
+``loss`` and ``pair_accuracy`` (summed rewards order the pair as its label does); the held-out tasks'
+accuracy comes from ``HeldOutPairAccuracyCallback``. Each validation epoch stores the mean and std of R_ψ's outputs on
 the validation pairs in the model, for ICRG's standardized labels.
 
 RewardGen is not a policy: deploy it through an ICRG checkpoint (``methods/icrg.py``).
@@ -27,12 +33,12 @@ import lightning as L
 import torch
 from torch import Tensor
 
-from icprl_lightning.contexts import ActionSpec, context_from_batch
+from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext, context_from_batch
 from icprl_lightning.methods.losses import trajectory_preference_loss
 from icprl_lightning.models.estimator import InContextRewardModel
 from icprl_lightning.validation import check_choice, check_sizes, check_transformer
 
-PAIR_SOURCES = ("other_pair", "context")
+PAIR_SOURCES = ("other_pair", "context", "context_causal")
 
 
 class RewardGenModule(L.LightningModule):
@@ -47,8 +53,11 @@ class RewardGenModule(L.LightningModule):
         check_transformer("RewardGenModule", n_layer, n_embd, n_head, dropout, lr, weight_decay, max_context)
         super().__init__()
         self.save_hyperparameters()
+        causal = pair_source == "context_causal"
+        self.hparams["causal"] = causal  # R_ψ's reading rule, saved for ICRG to copy (icrg.ARCHITECTURE)
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
-        self.reward = InContextRewardModel(state_dim, self.action_spec, n_layer, n_embd, n_head, max_context, dropout)
+        self.reward = InContextRewardModel(state_dim, self.action_spec, n_layer, n_embd, n_head, max_context, dropout,
+                                           causal=causal)
         self._moments = torch.zeros(3, dtype=torch.float64)  # count, sum, sum of squares of val outputs
 
     @property
@@ -69,6 +78,12 @@ class RewardGenModule(L.LightningModule):
             context = context_from_batch("trajectory_preference", batch, prefix="pair_")
         else:
             context = scored
+        return self.score_pair(context, scored)
+
+    def score_pair(self, context: TrajectoryPreferenceContext, scored: TrajectoryPreferenceContext
+                   ) -> tuple[Tensor, Tensor, Tensor]:
+        """(Σ_h r̂(ξ_a), Σ_h r̂(ξ_b), r̂ (B, 2H)) of ``scored``'s trajectories under R_ψ(· | context), read by
+        R_ψ's rule (causally: step h of either trajectory sees the context's steps < h)."""
         h = scored.states_a.shape[1]
         r = self(context, torch.cat([scored.states_a, scored.states_b], 1),
                  torch.cat([scored.actions_a, scored.actions_b], 1))

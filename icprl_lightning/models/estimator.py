@@ -2,10 +2,14 @@
 
 Paper, section 5.3 ("In-context reward representation") and appendix "Decision Importance Transformer".
 The backbone is the policy's (context tokenizer + causal transformer); the query token embeds (s, a),
-or s alone for V̂, and a linear head reads one scalar. Every query sees the whole context and itself:
-by the query mask this equals appending the query after the context and reading the last position,
-which is how the paper reads R_ψ ("we read out its prediction at the last time step"), for all queries
-of a trajectory in one pass.
+or s alone for V̂, and a linear head reads one scalar. By default every query sees the whole context and
+itself: by the query mask this equals appending the query after the context and reading the last
+position, which is how the paper reads R_ψ ("we read out its prediction at the last time step"), for all
+queries of a trajectory in one pass.
+
+R_ψ has a second reading rule, ``causal`` (RewardGen's ``pair_source="context_causal"``): the query for
+step h of a trajectory sees only the pair context's tokens of steps < h (step 0 sees none, only itself),
+in training and in ``label`` alike. See ``InContextRewardModel``.
 """
 
 from __future__ import annotations
@@ -34,13 +38,18 @@ class InContextEstimator(nn.Module):
         self.transformer = CausalTransformer(n_layer, n_embd, n_head, max_context, dropout)
         self.head = nn.Linear(n_embd, 1)
 
-    def forward(self, context, states: Tensor, actions: Tensor | None = None) -> Tensor:
-        """states (B, Q, S) [, actions (B, Q) | (B, Q, A)] -> (B, Q), each query seeing the whole context."""
+    def forward(self, context, states: Tensor, actions: Tensor | None = None, visible: Tensor | None = None
+                ) -> Tensor:
+        """states (B, Q, S) [, actions (B, Q) | (B, Q, A)] -> (B, Q).
+
+        ``visible`` (Q,): how many context tokens each query sees, from the first (default: all of them).
+        """
         if self.with_action != (actions is not None):
             raise ValueError(f"this estimator {'needs' if self.with_action else 'takes no'} query actions")
         tokens = self.tokenizer(context)  # (B, T, D)
         query = states if actions is None else torch.cat([states, self.action_spec.encode(actions)], dim=-1)
-        visible = torch.full((states.shape[1],), tokens.shape[1], device=states.device)
+        if visible is None:
+            visible = torch.full((states.shape[1],), tokens.shape[1], device=states.device)
         return self.head(self.transformer(tokens, self.query_embed(query), visible)).squeeze(-1)
 
 
@@ -51,14 +60,46 @@ class InContextRewardModel(InContextEstimator):
     arbitrary offset. ``reward_mean`` / ``reward_std`` (buffers, saved with the weights) are RewardGen's
     output statistics on the training tasks' validation pairs; ``label`` returns standardized rewards, the
     r̂ that ICRG's DIT stage sees in pretraining and at deployment alike.
+
+    ``causal`` is the reading rule. False: every query sees the whole pair context. True: the query for
+    step h sees the context's tokens of steps < h only (token h holds both trajectories' step h), so when
+    R_ψ scores the context's own pair (the paper's eq. (L_R^T)) neither the scored transition nor anything
+    later is in view. Queries are one or more trajectories of the context's horizon H laid end to end
+    (ξ_a then ξ_b in training, a pair in ICRG's relabeling, the behavior trajectory at deployment): query i
+    is step i mod H. What still leaks under the causal reading: s_h continues one of the two trajectories
+    whose steps < h are in view (in DarkRoom s_h is a deterministic move from s_{h-1}; in Meta-World the
+    states are continuous in time), and the context holds them in winner/loser slots, so whether a scored
+    transition belongs to the winner can be read off its state for every h ≥ 1. The causal form is the
+    paper's model read fairly in time, not a leak-free test: scoring another pair of the task is.
     """
 
     def __init__(self, state_dim: int, action_spec: ActionSpec, n_layer: int, n_embd: int, n_head: int,
-                 max_context: int, dropout: float = 0.0) -> None:
+                 max_context: int, dropout: float = 0.0, causal: bool = False) -> None:
         super().__init__("trajectory_preference", state_dim, action_spec, True, n_layer, n_embd, n_head, max_context,
                          dropout)
+        if not isinstance(causal, bool):
+            raise ValueError(f"InContextRewardModel: causal must be a bool, got {causal!r}")
+        self.causal = causal
         self.register_buffer("reward_mean", torch.zeros(()))
         self.register_buffer("reward_std", torch.ones(()))
+
+    def extra_repr(self) -> str:
+        return f"causal={self.causal}"
+
+    def visible(self, horizon: int, n_queries: int, device: torch.device) -> Tensor | None:
+        """Context tokens each query sees: None (all) or, causally, step i mod H of query i -> (Q,)."""
+        if not self.causal:
+            return None
+        if n_queries > horizon and n_queries % horizon:
+            raise ValueError(f"states: a causal R_ψ reads query i as step i mod H of trajectories of the context's "
+                             f"horizon H={horizon} laid end to end, so it takes at most H queries or a multiple of "
+                             f"H; got {n_queries}")
+        return torch.arange(n_queries, device=device) % horizon
+
+    def forward(self, context, states: Tensor, actions: Tensor) -> Tensor:
+        """Raw rewards R_ψ(s, a | context) for states (B, Q, S), actions (B, Q) -> (B, Q), read per ``causal``."""
+        return super().forward(context, states, actions,
+                               self.visible(context.states_a.shape[1], states.shape[1], states.device))
 
     def label(self, context, states: Tensor, actions: Tensor) -> Tensor:
         """Standardized r̂(s_h, a_h | D^T) for states (B, T, S), actions (B, T) -> (B, T)."""

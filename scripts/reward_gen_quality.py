@@ -1,0 +1,161 @@
+r"""RewardGen's reward quality on the held-out tasks, per context quality: write a JSON, print a markdown table.
+
+    python scripts/reward_gen_quality.py --data-config configs/reward_gen_darkroom.yaml \
+        --ckpt runs/reward_gen_darkroom-seed0/checkpoints/best.ckpt [--ckpt ...seed1...] [--json PATH]
+    python scripts/reward_gen_quality.py --data-config configs/reward_gen_metaworld.yaml --ckpt ... --ckpt ...
+
+Several ``--ckpt`` are training seeds of one RewardGen configuration (one ``pair_source``); each measure is
+averaged over the held-out pairs of a checkpoint, then reported as mean ± sem over the checkpoints. The
+three measures of R_ψ(s, a | ξ⁺, ξ⁻) (paper section 5.3, eq. (L_R^T)), per context quality:
+
+* ``other_pair_accuracy``: R_ψ conditioned on another pair of the same held-out task orders the scored
+  pair as its label does (``heldout_pairs()``): the scored transitions are not in view, the fair test.
+* ``own_pair_accuracy``: R_ψ scores the context's own pair (the paper's form) under the checkpoint's
+  reading rule: causal for ``pair_source=context_causal`` (step h sees the context's steps < h; still
+  leaky through the states, see ``models/estimator.py``), the whole context otherwise. Leaky by
+  construction for ``pair_source=context`` models (trained to read the scored transitions' winner/loser
+  slot); an ``other_pair`` model was never trained on this form.
+* ``reward_correlation``: Pearson correlation, pooled over steps and tasks, of R_ψ's per-step labels r̂
+  with the latent per-step rewards on the held-out unlabeled behavior trajectories, each labeled with its
+  evaluation pair as context (``InContextRewardModel.label``, as ICRG deploys; read by the same rule).
+  The latent rewards come from the ``RewardTrajectories`` dataset over the same trajectories.
+
+Chance accuracy is 0.5; tied returns carry coin-flip labels, so the ceiling is the manifest's label
+agreement (``eval_label_statistics`` in the JSON).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from darkroom_tprl_results import datamodule  # scripts/: the same trajectories with labels or true rewards
+
+from icprl_lightning.checkpoints import load_module
+from icprl_lightning.contexts import TrajectoryPreferenceContext, context_from_batch
+from icprl_lightning.families.base import QUALITIES
+from icprl_lightning.methods.reward_gen import RewardGenModule
+from icprl_lightning.metrics import mean_sem_or_none
+
+MEASURES = {"other_pair_accuracy": "accuracy, other pair (fair)", "own_pair_accuracy": "accuracy, own pair",
+            "reward_correlation": "corr(r̂, latent r)"}
+ROWS = 64  # held-out pairs per forward pass: bounds the attention's memory on long Meta-World horizons
+
+
+def own_pair_note(pair_source: str) -> str:
+    """What the own-pair accuracy means for a checkpoint trained with ``pair_source``."""
+    return {"other_pair": "whole context; this model was trained on other pairs, not on its context's own",
+            "context": "whole context: LEAKY, the model reads the scored transitions' winner/loser slot",
+            "context_causal": "causal (step h sees the context's steps < h); still leaky through the states"
+            }[pair_source]
+
+
+def rows(context: TrajectoryPreferenceContext, start: int) -> TrajectoryPreferenceContext:
+    """Contexts [start, start + ROWS) of a batch."""
+    return context.map(lambda x: x[start:start + ROWS])
+
+
+@torch.no_grad()
+def pair_accuracy(model: RewardGenModule, context: TrajectoryPreferenceContext,
+                  scored: TrajectoryPreferenceContext) -> float:
+    """Share of ``scored``'s pairs whose summed r̂ under R_ψ(· | context) order them as their labels do."""
+    correct = []
+    for start in range(0, scored.batch_size, ROWS):
+        chunk = rows(scored, start)
+        ret_a, ret_b, _ = model.score_pair(rows(context, start), chunk)
+        correct.append((ret_a > ret_b) == (chunk.preferred > 0.5))
+    return float(torch.cat(correct).float().mean())
+
+
+@torch.no_grad()
+def label_correlation(model: RewardGenModule, context: TrajectoryPreferenceContext, rewards: torch.Tensor) -> float:
+    """Pearson correlation of r̂ on the behavior trajectories (labeled with their pair) with the latent rewards."""
+    labels = torch.cat([model.reward.label(c, c.behavior_states, c.behavior_actions)
+                        for c in (rows(context, start) for start in range(0, context.batch_size, ROWS))])
+    return float(np.corrcoef(labels.flatten().numpy(), rewards.flatten().numpy())[0, 1])
+
+
+def evaluate(model: RewardGenModule, pairs: dict[str, dict[str, torch.Tensor]],
+             suites: dict[str, TrajectoryPreferenceContext], rewards: dict[str, torch.Tensor]
+             ) -> dict[str, dict[str, float]]:
+    out = {}
+    for q in QUALITIES:
+        scored = context_from_batch("trajectory_preference", pairs[q])
+        other = context_from_batch("trajectory_preference", pairs[q], prefix="pair_")
+        out[q] = {"other_pair_accuracy": pair_accuracy(model, other, scored),
+                  "own_pair_accuracy": pair_accuracy(model, scored, scored),
+                  "reward_correlation": label_correlation(model, suites[q], rewards[q])}
+    return out
+
+
+def load_reward_gen(path: Path) -> RewardGenModule:
+    model = load_module(path)  # weights_only, allow-listed class, checksum verified
+    if not isinstance(model, RewardGenModule):
+        raise ValueError(f"--ckpt {path} is a {type(model).__name__} checkpoint, not RewardGen's")
+    return model.eval()
+
+
+def table(summary: dict[str, dict[str, dict[str, float | None]]]) -> str:
+    def cell(m: dict[str, float | None]) -> str:
+        return f"{m['mean']:.3f}" + ("" if m["sem"] is None else f" ± {m['sem']:.3f}")
+
+    lines = ["| quality | " + " | ".join(MEASURES.values()) + " |", "|---|" + "---|" * len(MEASURES)]
+    lines += [f"| {q} | " + " | ".join(cell(summary[q][k]) for k in MEASURES) + " |" for q in QUALITIES]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--ckpt", type=Path, nargs="+", action="extend", required=True,
+                        help="RewardGen checkpoint(s) of one configuration (repeat or list: training seeds)")
+    parser.add_argument("--data-config", type=Path, default=Path("configs/reward_gen_darkroom.yaml"),
+                        help="the checkpoints' T-PRL data config (its held-out evaluation splits are scored)")
+    parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
+    parser.add_argument("--json", type=Path, default=Path("docs/results/reward_gen_quality.json"))
+    args = parser.parse_args(argv)
+    models = [(str(path), load_reward_gen(path)) for path in args.ckpt]
+    sources = {m.hparams.pair_source for _, m in models}
+    if len(sources) != 1:
+        parser.error(f"--ckpt: the checkpoints mix pair_source values {sorted(sources)}; pass the training seeds "
+                     "of one configuration per run")
+    pair_source = sources.pop()
+    dms = {kind: datamodule(args.data_config, kind, args.data_root)
+           for kind in ("trajectory_preference", "reward_trajectory")}
+    labeled = dms["trajectory_preference"]
+    if labeled.setting.eval_contexts_per_task < 2:
+        parser.error(f"{args.data_config}: setting eval_contexts_per_task must be >= 2 for another pair of each "
+                     f"held-out task, got {labeled.setting.eval_contexts_per_task}")
+    suites = {s.quality: s.context for s in labeled.evaluation_suites()}
+    rewards = {}
+    for oracle in dms["reward_trajectory"].evaluation_suites():
+        if not torch.equal(oracle.context.states, suites[oracle.quality].behavior_states):
+            raise ValueError(f"{args.data_config}: the reward and preference datasets' {oracle.quality} behavior "
+                             "trajectories differ (regenerate both from one config)")
+        rewards[oracle.quality] = oracle.context.rewards
+    pairs = labeled.heldout_pairs()
+    per_checkpoint = [{"checkpoint": path, **evaluate(model, pairs, suites, rewards)} for path, model in models]
+    summary = {}
+    for q in QUALITIES:
+        summary[q] = {}
+        for k in MEASURES:
+            mean, sem = mean_sem_or_none([r[q][k] for r in per_checkpoint])
+            summary[q][k] = {"mean": mean, "sem": sem}
+    info = labeled.load().manifest["info"]
+    out = {"data_config": str(args.data_config), "pair_source": pair_source,
+           "causal": models[0][1].reward.causal, "own_pair_reading": own_pair_note(pair_source),
+           "checkpoints": [path for path, _ in models], "mean": summary, "per_checkpoint": per_checkpoint,
+           "eval_label_statistics": info["eval_statistics"]}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(out, indent=2))
+    print(f"RewardGen (pair_source={pair_source}) on held-out tasks, mean ± sem over {len(models)} checkpoint(s)")
+    print(table(summary))
+    print(f"own pair read with: {out['own_pair_reading']}")
+    print(f"wrote {args.json}")
+    return out
+
+
+if __name__ == "__main__":
+    main()
