@@ -33,7 +33,7 @@ import shlex
 import subprocess
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -104,7 +104,7 @@ TPRL_SCALE = ("--data.init_args.setting.init_args.trajectories_per_task", "600",
 
 
 def _dit_sweep_runs() -> tuple[Run, ...]:
-    """DIT on true rewards: η at γ = 0.95, a longer horizon γ = 0.99 at η = 0.3, and the uncentred advantages of
+    """DIT on true rewards: η at γ = 0.95, a longer horizon γ = 0.99 at η = 1, and the uncentred advantages of
     before issue 17 (5 fits: what one seed of the sweep costs on 2 cores in about an hour)."""
     def dit(name: str, eta: str, gamma: str, center: str = "true") -> Run:
         return Run(name, ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, "--model.init_args.eta", eta,
@@ -112,11 +112,11 @@ def _dit_sweep_runs() -> tuple[Run, ...]:
                                                           "--model.init_args.center_advantages", center))
     return (dit("uncentred eta1 g0.95", "1.0", "0.95", "false"),
             *(dit(f"eta{e} g0.95", e, "0.95") for e in ("1.0", "0.3", "0.1")),
-            dit("eta0.3 g0.99", "0.3", "0.99"))
+            dit("eta1.0 g0.99", "1.0", "0.99"))
 
 
 # DIT's η and γ picked by darkroom_dit_sweep (DIT on true rewards), for DIT and ICRG alike
-DIT_PICK = ("--model.init_args.eta", "0.3", "--model.init_args.gamma", "0.95")
+DIT_PICK = ("--model.init_args.eta", "1.0", "--model.init_args.gamma", "0.95")
 FOLDS = 2
 REWARD_GEN = "configs/reward_gen_darkroom.yaml"
 
@@ -440,37 +440,47 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
                     raise ValueError(f"{run.name} needs {name} at training seeds {run_seeds[run.name]}, "
                                      f"which has only {run_seeds[name]}")
     start = time.time()
-    for stage in stages(table.runs):
-        todo = []
-        for run in stage:
-            for seed in run_seeds[run.name]:
-                needed = [done.get((name, seed)) for _, names in run.needs for name in names]
-                if dry_run and None in needed:  # an earlier stage still to train: its checkpoint is unknown
-                    print(f"# {run.name} seed {seed}: after the runs it needs", flush=True)
-                    continue
-                paths = {name: done[(name, seed)]["checkpoint"] for _, names in run.needs for name in names}
-                record = root / f"{slug(run.name)}-seed{seed}.json"
-                command = fit_command(run, seed, root / "runs", paths)
-                inputs = fit_inputs(run, command, tuple(n["inputs_sha256"] for n in needed))
-                recorded = json.loads(record.read_text()) if record.exists() and not refit else None
-                if recorded is not None and recorded.get("inputs_sha256") == inputs:
-                    done[(run.name, seed)] = recorded
-                else:
-                    if recorded is not None:
-                        print(f"{run.name} seed {seed}: its command, configs or earlier stages changed since "
-                              f"{record} was written; training it again", flush=True)
-                    todo.append((run, seed, command, inputs, root / f"{slug(run.name)}-seed{seed}.log", record))
+    order = [run for stage in stages(table.runs) for run in stage]  # every fit after the fits it needs
+
+    def fit(run: Run, seed: int, needed: list[dict | None]) -> dict | None:
+        """The fit's record: reused while its inputs are unchanged, else trained (None: dry run, not known)."""
+        if None in needed:  # dry run: an earlier stage still to train, so its checkpoint is unknown
+            print(f"# {run.name} seed {seed}: after the runs it needs", flush=True)
+            return None
+        paths = dict(zip((n for _, names in run.needs for n in names), (n["checkpoint"] for n in needed), strict=True))
+        record = root / f"{slug(run.name)}-seed{seed}.json"
+        command = fit_command(run, seed, root / "runs", paths)
+        inputs = fit_inputs(run, command, tuple(n["inputs_sha256"] for n in needed))
+        recorded = json.loads(record.read_text()) if record.exists() and not refit else None
+        if recorded is not None and recorded.get("inputs_sha256") == inputs:
+            return recorded
+        if recorded is not None:
+            print(f"{run.name} seed {seed}: its command, configs or earlier stages changed since {record} was "
+                  "written; training it again", flush=True)
         if dry_run:
-            for _, _, command, *_ in todo:
-                print(shlex.join(command))
-            continue
-        print(f"{table.name}: {len(todo)} fits to run ({len(done)} done), {jobs} at a time", flush=True)
-        with ThreadPoolExecutor(max_workers=jobs) as pool:
-            futures = {(run.name, seed): pool.submit(_run_fit, command, inputs, log, record, threads, run.checkpoint)
-                       for run, seed, command, inputs, log, record in todo}
-            for key, future in futures.items():
-                done[key] = future.result()
-                print(f"  {key[0]} seed {key[1]}: {done[key]['seconds']} s -> {done[key]['checkpoint']}", flush=True)
+            print(shlex.join(command), flush=True)
+            return None
+        print(f"  training {run.name} seed {seed}", flush=True)
+        result = _run_fit(command, inputs, root / f"{slug(run.name)}-seed{seed}.log", record, threads, run.checkpoint)
+        print(f"  {run.name} seed {seed}: {result['seconds']} s -> {result['checkpoint']}", flush=True)
+        return result
+
+    # A worker waits for the fits its run needs: they were submitted before it, so they are running or done
+    # (never queued behind it), and a later stage starts as soon as its own seed's earlier stages are done.
+    futures: dict[tuple[str, int], Future] = {}
+    with ThreadPoolExecutor(max_workers=1 if dry_run else jobs) as pool:
+        for run in order:
+            for seed in run_seeds[run.name]:
+                deps = [futures[(name, seed)] for _, names in run.needs for name in names]
+
+                def task(run: Run = run, seed: int = seed, deps: list[Future] = deps) -> dict | None:
+                    return fit(run, seed, [d.result() for d in deps])
+
+                futures[(run.name, seed)] = pool.submit(task)
+        for key, future in futures.items():
+            result = future.result()
+            if result is not None:
+                done[key] = result
     if dry_run:
         return {}
     fit_seconds = round(time.time() - start, 1)

@@ -160,3 +160,34 @@ def test_the_tprl_table_passes_each_seeds_reward_models_to_icrg(tmp_path, capsys
     crossfit = [line for line in lines if "cross_fit_checkpoints" in line]
     assert len(crossfit) == 1
     assert "[/ckpt/RewardGen_fold0-seed0/best.ckpt,/ckpt/RewardGen_fold1-seed0/best.ckpt]" in crossfit[0]
+
+
+def test_a_later_stage_starts_as_soon_as_its_own_needs_are_done(tmp_path, monkeypatch):
+    """With 2 jobs, C (which needs the quick B) trains while the slow A, which it does not need, still runs."""
+    import threading
+
+    import icprl_lightning.reproduce as rep
+
+    events, a_may_finish = [], threading.Event()
+
+    def fake_fit(command, inputs, log, record, threads, which="last"):
+        name = command[command.index("--trainer.logger.init_args.name") + 1]
+        events.append(("start", name))
+        if name.startswith("A-"):
+            assert a_may_finish.wait(10), "C never started while A ran"
+        if name.startswith("C-"):
+            assert "--needs" in command and command[command.index("--needs") + 1] == "b.ckpt"
+            a_may_finish.set()
+        events.append(("end", name))
+        return {"command": " ".join(command), "inputs_sha256": inputs, "checkpoint": f"{name[0].lower()}.ckpt",
+                "seconds": 0.0}
+
+    monkeypatch.setattr(rep, "_run_fit", fake_fit)
+    for name in "abc":
+        (tmp_path / f"{name}.yaml").write_text("model: {}\n")
+    table = Table("sched", "sched", (Run("A", (str(tmp_path / "a.yaml"),)), Run("B", (str(tmp_path / "b.yaml"),)),
+                                     Run("C", (str(tmp_path / "c.yaml"),), needs=(("--needs", ("B",)),))))
+    summary = reproduce(table, [0], jobs=2, work=tmp_path / "work", out_dir=tmp_path / "out", only=["A", "C"])
+    assert sorted(summary["fits"]) == ["A-seed0", "B-seed0", "C-seed0"]
+    assert events.index(("start", "C-seed0")) < events.index(("end", "A-seed0"))
+    assert events.index(("end", "B-seed0")) < events.index(("start", "C-seed0"))
