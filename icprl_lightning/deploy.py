@@ -12,7 +12,7 @@ only the query token against it (paper, "DP²T Deployment" / "ICPO Deployment", 
 once — the dueling-bandit evaluation's question (weak regret vs context size) — with one forward pass in
 which query h sees the first h context tokens (the training mask); it never builds the cache.
 
-DPT, DP²T and ICPO act with the argmax of T_θ(· | s_h, D) by default (ICRG samples); ``greedy=False``
+DPT, DP²T and ICPO act with the argmax of T_θ(· | s_h, D) by default (DIT and ICRG sample); ``greedy=False``
 samples a_h ~ T_θ(· | s_h, D) as the paper's text writes it. Greedy is their default because ICPO's
 policy is only as sharp as its β makes it: for λ = 1 the optimum is T ∝ exp(A*/(β τ)) (τ the label
 temperature), about softmax(A*) at β = τ = 1, whose samples are noisy where advantages differ by 1–2

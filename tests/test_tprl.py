@@ -220,6 +220,8 @@ def test_dp2t_and_dit_checkpoints_deploy_on_their_contexts(tprl, tprl_rewards, t
     for model, dm in ((DP2TModule(**ENV, **SIZES, context_kind="trajectory_preference"), tprl),
                       (DITModule(**ENV, **SIZES, value_epochs=0), tprl_rewards)):
         agent = load_agent(_fit_and_save(model, dm, tmp_path / "m.ckpt"), seed=0)
+        # each method's own default: DP²T acts by its argmax, DIT samples from T^R (the paper's deployment)
+        assert agent.greedy == isinstance(model, DP2TModule)
         ctx = dm.evaluation_suites()[2].context
         agent.reset(ctx)
         assert agent.act(ctx.states[:, 0]).shape == (ctx.batch_size,)
