@@ -123,8 +123,7 @@ REWARD_GEN = "configs/reward_gen_darkroom.yaml"
 
 def _tprl_runs() -> tuple[Run, ...]:
     """ICRG's stages beside their oracles: RewardGen on all training goals and on each fold's complement, ICRG on
-    in-sample and on cross-fitted labels, DIT on true rewards, DP²T on the same pairs; the paper's causal
-    RewardGen is measured (``scripts/reward_gen_quality.py``), not deployed."""
+    in-sample and on cross-fitted labels, DIT on true rewards, DP²T on the same pairs."""
     folds = tuple(f"RewardGen fold{i}" for i in range(FOLDS))
     icrg = ("configs/icrg_darkroom.yaml",)
     stage1 = ("--model.init_args.reward_gen_checkpoint", ("RewardGen",))
@@ -132,8 +131,6 @@ def _tprl_runs() -> tuple[Run, ...]:
             *(Run(name, (REWARD_GEN,), (*TPRL_SCALE, "--data.init_args.folds", str(FOLDS),
                                         "--data.init_args.holdout_fold", str(i)), evaluated=False, checkpoint="best")
               for i, name in enumerate(folds)),
-            Run("RewardGen causal", (REWARD_GEN,), (*TPRL_SCALE, "--model.init_args.pair_source", "context_causal"),
-                evaluated=False, checkpoint="best"),
             Run("ICRG in-sample labels", icrg, (*TPRL_SCALE, *DIT_PICK), needs=(stage1,)),
             Run("ICRG cross-fitted labels", icrg, (*TPRL_SCALE, *DIT_PICK),
                 needs=(stage1, ("--model.init_args.cross_fit_checkpoints", folds))),
@@ -241,12 +238,16 @@ TABLES = {t.name: t for t in (
           _dit_sweep_runs(), contexts=("own",), eval_seeds=(0, 1),
           budget="≈ 11 min per fit on 1 idle core; 5 fits with --seeds 0"),
     Table("darkroom_tprl", "DarkRoom T-PRL (600 pairs per goal): ICRG's stages against their oracles, DP²T",
-          _tprl_runs(), budget="≈ 4–10 min per fit on 1 core of 2 busy ones; 8 runs × seeds, RewardGen stages first"),
-    Table("metaworld_reward_gen", "Meta-World Reach T-PRL: RewardGen scoring another pair vs its own pair causally",
-          (Run("RewardGen", ("configs/reward_gen_metaworld.yaml",), evaluated=False, checkpoint="best"),
-           Run("RewardGen causal", ("configs/reward_gen_metaworld.yaml",),
+          _tprl_runs(),
+          budget="≈ 20–40 min per fit on 1 core of 2 busy ones; 7 runs × seeds, each ICRG after its RewardGens"),
+    Table("reward_gen_forms", "RewardGen in the paper's form (its own pair, read causally) beside the other-pair "
+          "form: DarkRoom (the other-pair RewardGen is darkroom_tprl's) and Meta-World Reach T-PRL",
+          (Run("DarkRoom causal", (REWARD_GEN,), (*TPRL_SCALE, "--model.init_args.pair_source", "context_causal"),
+               evaluated=False, checkpoint="best"),
+           Run("Reach other pair", ("configs/reward_gen_metaworld.yaml",), evaluated=False, checkpoint="best"),
+           Run("Reach causal", ("configs/reward_gen_metaworld.yaml",),
                ("--model.init_args.pair_source", "context_causal"), evaluated=False, checkpoint="best")),
-          budget="≈ 4 min per fit on 1 core; measured by scripts/reward_gen_quality.py, not deployed"),
+          budget="≈ 5–20 min per fit on 1 core; measured by scripts/reward_gen_quality.py, not deployed"),
     Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
           evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS,
           eval_seeds=(0,), budget="≈ 2–4 min per fit on 1 core"),
