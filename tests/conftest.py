@@ -5,11 +5,22 @@ from __future__ import annotations
 import os
 
 import pytest
+import torch
 from factories import darkroom_data  # noqa: E402
 
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 
 os.environ.setdefault("WANDB_MODE", "disabled")
+
+
+@pytest.fixture(scope="module")
+def one_thread():
+    """One torch thread for a module of tiny models (``pytestmark = pytest.mark.usefixtures("one_thread")``): on a
+    shared 2-core machine a second intra-op thread only adds synchronization, many-fold for small MLPs and rollouts."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 TINY = dict(trajectories_per_task=6, val_trajectories_per_task=2, eval_contexts_per_task=1,

@@ -30,12 +30,7 @@ SIZES = dict(n_layer=1, n_embd=16, n_head=2)
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def data(root: str, **kw):

@@ -42,13 +42,7 @@ def _agents() -> dict:
 AGENTS = _agents()
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny forward passes: intra-op threads only add contention (30x slower on a busy 2-core machine)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _layout(name: str) -> list[tuple[str, str]]:

@@ -32,12 +32,7 @@ ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100)
 H = 6
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _pair(seed: int = 0, b: int = 3, h: int = H) -> TrajectoryPreferenceContext:

@@ -29,13 +29,7 @@ from icprl_lightning.io import write_json_atomic
 GOALS = np.array([[0.05, 0.85, 0.2], [-0.05, 0.82, 0.1]])
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    # One torch thread: on 2 shared cores, SAC's small MLPs slow down many-fold when threads oversubscribe.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.mark.filterwarnings("ignore::UserWarning")  # unbounded Box warnings: metaworld's own bounds are infinite

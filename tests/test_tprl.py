@@ -14,7 +14,12 @@ from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 from icprl_lightning.methods.dit import DITModule, discounted_returns
 from icprl_lightning.methods.dpt import DP2TModule
 from icprl_lightning.methods.icrg import ICRGAgent, ICRGModule
-from icprl_lightning.methods.losses import advantage_weighted_loss, dit_value_loss, trajectory_preference_loss
+from icprl_lightning.methods.losses import (
+    advantage_weighted_loss,
+    dit_value_loss,
+    standardized_advantages,
+    trajectory_preference_loss,
+)
 from icprl_lightning.methods.reward_gen import RewardGenModule
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -24,13 +29,7 @@ SIZES = dict(n_layer=1, n_embd=16, n_head=2)
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tiny models step by step (rollouts): a second thread only adds synchronization on a shared 2-core box."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 # ---- losses by hand ------------------------------------------------------------------------------
@@ -60,6 +59,17 @@ def test_advantage_weighted_loss_by_hand_with_clipping():
     assert loss.item() == pytest.approx(expected, rel=1e-6)
     loss.backward()
     torch.testing.assert_close(loglik.grad, -torch.tensor([1.0, math.exp(2), 20.0]) / 3)
+
+
+def test_standardized_advantages_remove_the_offset_only_when_centred():
+    q, v = torch.tensor([5.0, 6.0, 7.0, 8.0]), torch.zeros(4)  # Q̂ − V̂ = 5..8: offset 6.5, std √(5/3)
+    std = math.sqrt(5 / 3)
+    centred = standardized_advantages(q, v)
+    assert centred.tolist() == pytest.approx([(x - 6.5) / std for x in (5, 6, 7, 8)], rel=1e-5)
+    raw = standardized_advantages(q, v, center=False)
+    assert raw.tolist() == pytest.approx([x / std for x in (5, 6, 7, 8)], rel=1e-5)
+    # uncentred, every weight exp(Â/η) at η = 1 reaches a clip of 20 (Â ≥ 3.87 > ln 20): DIT would be cloning
+    assert bool((torch.exp(raw) >= 20).all()) and not bool((torch.exp(centred) >= 20).any())
 
 
 # ---- modules -------------------------------------------------------------------------------------
