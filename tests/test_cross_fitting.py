@@ -254,3 +254,35 @@ def test_mismatched_fold_checkpoints_are_refused(reward_gens, tmp_path):
         build([f0, f1], stage1=f0)
     with pytest.raises(HyperparameterError, match="cross_fit_hparams must be a list of k >= 2"):
         ICRGModule(**ENV, **SIZES, reward_gen_checkpoint=main, cross_fit_hparams=[{"n_layer": 1}])
+
+
+# ---- scripts/icrg_label_quality.py: the labels ICRG trains on and deploys with, against the latent reward ----------
+
+def test_label_quality_scores_the_labels_each_icrg_trains_on(full, reward_gens, tmp_path):
+    import sys
+
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "scripts"))
+    import icrg_label_quality
+
+    rewards = darkroom_data("reward_trajectory", root_dir=full.root_dir, **{k: v for k, v in TINY.items()
+                                                                            if k != "pairs"})
+    rewards.prepare_data()
+    checkpoints = {}
+    for name, extra in (("in-sample", {}), ("cross-fitted", {"cross_fit_checkpoints": [str(reward_gens["fold0"]),
+                                                                                        str(reward_gens["fold1"])]})):
+        torch.manual_seed(0)
+        model = ICRGModule(**ENV, **SIZES, value_epochs=0, reward_gen_checkpoint=str(reward_gens["main"]), **extra)
+        checkpoints[name] = _fit_save(model, full, tmp_path / f"{name}.ckpt")
+    scores = {name: icrg_label_quality.training_labels(load_module(path).eval(), full, rewards, rows=12, seed=0)
+              for name, path in checkpoints.items()}
+    assert all(-1 <= s <= 1 for s in scores.values())
+    assert scores["in-sample"] != pytest.approx(scores["cross-fitted"])  # other labelers on the same rows
+    # the deployment labels are the agent's, which both ICRGs share (the main R_ψ)
+    deployed = {name: icrg_label_quality.deployment_labels(path, full, rewards) for name, path in checkpoints.items()}
+    assert deployed["in-sample"] == pytest.approx(deployed["cross-fitted"])
+    assert set(deployed["in-sample"]) == {"low", "medium", "high"}
+    other = darkroom_data("reward_trajectory", root_dir=str(tmp_path / "other"), **{
+        **{k: v for k, v in TINY.items() if k != "pairs"}, "seed": 1})
+    other.prepare_data()
+    with pytest.raises(ValueError, match="different training trajectories"):
+        icrg_label_quality.training_labels(load_module(checkpoints["in-sample"]).eval(), full, other, rows=12, seed=0)

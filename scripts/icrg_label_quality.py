@@ -1,0 +1,101 @@
+r"""ICRG's reward labels against the latent reward: in pretraining (what DIT learns from) and at deployment.
+
+    python scripts/icrg_label_quality.py --config <icrg run>/config.yaml \
+        --ckpt <in-sample ICRG>/checkpoints/last.ckpt --ckpt <cross-fitted ICRG>/checkpoints/last.ckpt
+
+The relabeling stage of ICRG (paper section 5.3) in numbers. For each ICRG checkpoint:
+
+* ``training``: the labels ICRG's DIT stage learned from, made exactly as in training
+  (``ICRGModule.labeled_trajectories``: R_ψ conditioned on another pair of the same training goal; with
+  cross-fitting, by the RewardGen that left that goal's fold out), on ``--rows`` training rows drawn with
+  ``--seed``;
+* ``deployment``: the labels ICRG's agent gives the held-out goals' unlabeled behavior trajectories,
+  per context quality (``ICRGAgent.reset``).
+
+Each is the Pearson correlation, pooled over steps and trajectories, of the standardized labels r̂ with the
+latent per-step rewards of the same trajectories (the ``RewardTrajectories`` dataset over the same bytes).
+In-sample labels on the training goals beside deployment labels on unseen goals show how much sharper
+the labels DIT learned from were than those it acts on; cross-fitted labels should sit closer to the
+deployment ones.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from darkroom_tprl_results import datamodule  # scripts/: the same trajectories with labels or true rewards
+
+from icprl_lightning import load_agent
+from icprl_lightning.checkpoints import load_module
+from icprl_lightning.methods.icrg import ICRGModule
+
+
+def correlation(labels: torch.Tensor, rewards: torch.Tensor) -> float:
+    return float(np.corrcoef(labels.flatten().numpy(), rewards.flatten().numpy())[0, 1])
+
+
+@torch.no_grad()
+def training_labels(model: ICRGModule, pairs, rewards, rows: int, seed: int) -> float:
+    """Correlation of the labels ICRG trains on (``rows`` training rows) with their latent rewards."""
+    train = pairs.train_dataloader().dataset  # ContextBatches: a whole batch per list of rows
+    generator = torch.Generator().manual_seed(seed)
+    index = torch.randperm(len(train), generator=generator)[:rows].sort().values.tolist()
+    torch.manual_seed(seed)  # the other pair of each row's task
+    batch = train[index]
+    true = rewards.load()["train"]
+    if not np.array_equal(true["states_a"][index], batch["states_a"].numpy()):
+        raise ValueError("the reward and preference datasets hold different training trajectories")
+    a, b = model.labeled_trajectories(batch)
+    return correlation(torch.cat([a.rewards, b.rewards], 1),
+                       torch.from_numpy(np.concatenate([true["rewards_a"][index], true["rewards_b"][index]], 1)))
+
+
+@torch.no_grad()
+def deployment_labels(checkpoint: Path, pairs, rewards) -> dict[str, float]:
+    """Per quality, the correlation of the agent's labels of the held-out behavior trajectories with the latent ones."""
+    agent = load_agent(checkpoint)
+    out = {}
+    for suite, oracle in zip(pairs.evaluation_suites(), rewards.evaluation_suites(), strict=True):
+        agent.reset(suite.context)
+        out[suite.quality] = correlation(agent.labeled_context.rewards, oracle.context.rewards)
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--ckpt", type=Path, nargs="+", action="extend", required=True, help="ICRG checkpoint(s)")
+    parser.add_argument("--config", type=Path, required=True, help="the ICRG runs' data config (their config.yaml)")
+    parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
+    parser.add_argument("--rows", type=int, default=2000, help="training rows whose labels are scored")
+    parser.add_argument("--seed", type=int, default=0, help="draws the training rows and their other pairs")
+    parser.add_argument("--json", type=Path, default=Path("docs/results/icrg_label_quality.json"))
+    args = parser.parse_args(argv)
+    pairs = datamodule(args.config, "trajectory_preference", args.data_root)
+    pairs.pairs = True  # ICRG labels each pair conditioned on another pair of its goal
+    pairs.setup("fit")
+    rewards = datamodule(args.config, "reward_trajectory", args.data_root)
+    results = {}
+    for path in args.ckpt:
+        model = load_module(path)  # weights_only, allow-listed class, checksum verified
+        if not isinstance(model, ICRGModule):
+            raise ValueError(f"--ckpt {path} is a {type(model).__name__} checkpoint, not ICRG's")
+        results[str(path)] = {"cross_fitted": model.cross_fit is not None,
+                              "training": training_labels(model.eval(), pairs, rewards, args.rows, args.seed),
+                              "deployment": deployment_labels(path, pairs, rewards)}
+    out = {"config": str(args.config), "rows": args.rows, "seed": args.seed, "correlation": results}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(out, indent=2))
+    print("| checkpoint | labels | training goals | held-out low | medium | high |\n|---|---|---|---|---|---|")
+    for path, r in results.items():
+        d = r["deployment"]
+        print(f"| {path} | {'cross-fitted' if r['cross_fitted'] else 'in-sample'} | {r['training']:.3f} | "
+              f"{d['low']:.3f} | {d['medium']:.3f} | {d['high']:.3f} |")
+    return out
+
+
+if __name__ == "__main__":
+    main()
