@@ -135,6 +135,9 @@ def _tprl_runs() -> tuple[Run, ...]:
             Run("ICRG cross-fitted labels", icrg, (*TPRL_SCALE, *DIT_PICK),
                 needs=(stage1, ("--model.init_args.cross_fit_checkpoints", folds))),
             Run("DIT true rewards", ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, *DIT_PICK)),
+            # γ = 0.99: the sweep's best DIT on true rewards, which finished after this table's other fits
+            Run("ICRG in-sample labels g0.99", icrg, (*TPRL_SCALE, "--model.init_args.eta", "1.0",
+                                                      "--model.init_args.gamma", "0.99"), needs=(stage1,)),
             Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
 
 

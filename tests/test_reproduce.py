@@ -155,7 +155,7 @@ def test_the_tprl_table_passes_each_seeds_reward_models_to_icrg(tmp_path, capsys
         (work / table.name / f"{slug(run.name)}-seed0.json").write_text(json.dumps(record))
     reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("icprl fit")]
-    assert len(lines) == 2 and all("icrg_darkroom.yaml" in line for line in lines)  # only the ICRG stage is left
+    assert len(lines) == 3 and all("icrg_darkroom.yaml" in line for line in lines)  # only the ICRG stage is left
     assert all("--model.init_args.reward_gen_checkpoint /ckpt/RewardGen-seed0/best.ckpt" in line for line in lines)
     crossfit = [line for line in lines if "cross_fit_checkpoints" in line]
     assert len(crossfit) == 1
