@@ -191,3 +191,16 @@ def test_a_later_stage_starts_as_soon_as_its_own_needs_are_done(tmp_path, monkey
     assert sorted(summary["fits"]) == ["A-seed0", "B-seed0", "C-seed0"]
     assert events.index(("start", "C-seed0")) < events.index(("end", "A-seed0"))
     assert events.index(("end", "B-seed0")) < events.index(("start", "C-seed0"))
+
+
+def test_final_epoch_means_average_the_last_epochs_training_metrics(tmp_path):
+    from icprl_lightning.reproduce import final_epoch_means, learning_curve
+
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "metrics.csv").write_text(
+        "epoch,step,train/clipped_fraction,val/darkroom/low/return\n"
+        "0,10,0.9,\n1,20,0.1,\n1,30,0.3,\n1,30,,12.5\n")
+    checkpoint = str(tmp_path / "checkpoints" / "last.ckpt")
+    assert final_epoch_means(checkpoint) == {"clipped_fraction": pytest.approx(0.2)}  # epoch 0's 0.9 left out
+    assert learning_curve(checkpoint) == [{"step": 30, "low": 12.5}]
+    assert final_epoch_means(str(tmp_path / "elsewhere" / "checkpoints" / "last.ckpt")) == {}
