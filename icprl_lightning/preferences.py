@@ -34,6 +34,22 @@ def sample_preferences(utility_first: np.ndarray, utility_second: np.ndarray, bt
     return (rng.random(p.shape) < p).astype(np.uint8)
 
 
+BT_TEMPERATURE_LADDER = (1.0, 0.3, 0.1, 0.05, 0.02, 0.01)
+
+
+def expected_agreement(utility_first: np.ndarray, utility_second: np.ndarray,
+                       temperatures: tuple[float, ...] = BT_TEMPERATURE_LADDER) -> dict[str, float]:
+    """The label agreement Bradley–Terry labels would have at each temperature T, in expectation, on these pairs:
+    mean σ(|ΔU| / T) over the pairs whose utilities differ (``label_agreement``'s population). Says how much
+    signal a temperature leaves in labels of utility gaps this small; NaN when every pair is a tie.
+    """
+    gap = np.abs(np.asarray(utility_first, dtype=np.float64) - np.asarray(utility_second, dtype=np.float64))
+    gap = gap[gap != 0]
+    if gap.size == 0:
+        return {str(t): float("nan") for t in temperatures}
+    return {str(t): float(np.mean(0.5 * (1.0 + np.tanh(gap / (2.0 * t))))) for t in temperatures}
+
+
 def label_agreement(utility_first: np.ndarray, utility_second: np.ndarray, preferred: np.ndarray) -> float:
     """Share of labels that agree with the true ordering, over pairs whose utilities differ.
 

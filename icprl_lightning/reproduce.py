@@ -141,6 +141,34 @@ def _tprl_runs() -> tuple[Run, ...]:
             Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
 
 
+# Meta-World Reach I-PRL (issue 13): the scripted recipe (the configs as they are) and the paper's (the committed
+# SAC oracle), at multiples of the configs' 20 contexts per training goal, the configs' 50 epochs each
+REACH_RECIPES = {"scripted": (), "sac": ("configs/overlays/sac_oracle.yaml",)}
+RECIPE_TITLES = {"scripted": "scripted-expert recipe", "sac": "the paper's recipe (SAC oracle)"}
+REACH_SCALES = (1, 2, 4, 8)
+REACH_CONTEXTS_PER_GOAL = 20
+
+
+def _reach_runs(recipe: str, scale: int) -> tuple[Run, ...]:
+    """DPT, DP²T and ICPO on one Reach recipe at ``scale`` × 20 contexts per goal (DPT's training contexts from
+    the converged policy on the SAC recipe, as the paper's)."""
+    overlays = REACH_RECIPES[recipe]
+    data = ("--data.init_args.setting.init_args.trajectories_per_task", str(REACH_CONTEXTS_PER_GOAL * scale))
+    dpt = (*overlays, "configs/overlays/converged_contexts.yaml") if recipe == "sac" else overlays
+    return (Run("DPT", ("configs/dpt_metaworld.yaml", *dpt), data),
+            Run("DP2T", ("configs/dp2t_metaworld.yaml", *overlays), data),
+            Run("ICPO", ("configs/icpo_metaworld.yaml", *overlays), data))
+
+
+def _reach_tables() -> tuple[Table, ...]:
+    return tuple(
+        Table(f"metaworld_{recipe}_x{k}", f"Meta-World Reach I-PRL, {RECIPE_TITLES[recipe]}, "
+              f"{REACH_CONTEXTS_PER_GOAL * k} contexts per goal: DPT, DP²T, ICPO", _reach_runs(recipe, k),
+              baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
+              budget=f"≈ {5 + 4 * k} min per fit on 1 idle core (data generation included)")
+        for recipe in REACH_RECIPES for k in REACH_SCALES)
+
+
 BETAS, LAMBDAS = ("1", "0.3", "0.1", "0.03"), ("0.25", "0.5", "0.75", "1")
 MISTAKE_RATES = ("0", "0.1", "0.2", "0.3")
 
@@ -251,6 +279,7 @@ TABLES = {t.name: t for t in (
            Run("Reach causal", ("configs/reward_gen_metaworld.yaml",),
                ("--model.init_args.pair_source", "context_causal"), evaluated=False, checkpoint="best")),
           budget="≈ 5–20 min per fit on 1 core; measured by scripts/reward_gen_quality.py, not deployed"),
+    *_reach_tables(),
     Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
           evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS,
           eval_seeds=(0,), budget="≈ 2–4 min per fit on 1 core"),

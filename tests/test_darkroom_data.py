@@ -32,6 +32,11 @@ def test_state_follows_the_preferred_action_and_labels_follow_bt():
         assert n > 1000
         assert abs(y[sel].mean() - p) < 4 * np.sqrt(p * (1 - p) / n), diff
     assert 0.7 < stats["label_agreement"] < 0.95
+    # the agreement BT labels would have at each temperature: at the data's own (1) it is what was drawn
+    expected = stats["expected_agreement_by_bt_temperature"]
+    assert abs(expected["1.0"] - stats["label_agreement"]) < 0.01
+    assert list(expected.values()) == sorted(expected.values()) and expected["0.01"] > 0.999  # gaps are ≥ 1
+    assert stats["median_utility_gap"] == 1.0
 
 
 def test_same_seed_same_bytes(tmp_path):
@@ -89,6 +94,25 @@ def test_config_mismatch_names_the_key_and_the_fix(tiny_ipref, tiny_kwargs):
     with pytest.raises(DatasetError, match=r"bt_temperature: on disk 1.0, requested 2.0") as err:
         dm.prepare_data()
     assert "icprl generate" in str(err.value)
+
+
+def test_reward_contexts_from_a_pretraining_policy(tmp_path):
+    from icprl_lightning.data.settings import RewardContexts
+    from icprl_lightning.validation import HyperparameterError
+
+    with pytest.raises(HyperparameterError, match="pretraining_target"):
+        RewardContexts(train_policy="pretraining")
+    with pytest.raises(HyperparameterError, match="pretraining_target"):
+        RewardContexts(pretraining_target=1.0)
+    with pytest.raises(HyperparameterError, match="pretraining_target"):
+        RewardContexts(pretraining_target=1.5, train_policy="pretraining")
+    setting = RewardContexts(pretraining_target=1.0, train_policy="pretraining", trajectories_per_task=2,
+                             val_trajectories_per_task=1, eval_contexts_per_task=1, calibration_episodes=2,
+                             reference_episodes=2)
+    splits, info = setting.generate(DarkRoomFamily(), progress=False)
+    assert info["calibration"]["pretraining"]["mixing"] == pytest.approx(1.0, abs=0.05)
+    assert np.all(splits["train"]["quality"] == 3) and np.all(splits["eval_low"]["quality"] == 0)
+    assert setting.config()["pretraining_target"] == 1.0
 
 
 def test_reward_contexts_hold_true_rewards(tiny_reward):

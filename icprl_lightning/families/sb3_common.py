@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import platform
+import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -69,14 +70,16 @@ class EvalCheckpointCallback(BaseCallback):
     ``eval_at_start``, i.e. the untrained policy); keep the best weights; optionally save each checkpoint.
 
     ``make_act(model)`` gives the action function to evaluate (default: the deterministic policy).
-    After training, ``history`` lists every evaluation, ``best_index`` the first one with the highest
-    mean return, and ``restore_best()`` loads its weights into the model.
+    ``verbose`` > 0 prints each evaluation to stderr. After training, ``history`` lists every evaluation,
+    ``best_index`` the first one with the highest mean return, and ``restore_best()`` loads its weights
+    into the model.
     """
 
     def __init__(self, eval_env: gym.Env, eval_every_steps: int, eval_episodes: int, eval_seed: int,
                  make_act: Callable[[BaseAlgorithm], Act] = deterministic_act, save_dir: str | Path | None = None,
-                 reset_options: Sequence[dict[str, Any]] | None = None, eval_at_start: bool = True) -> None:
-        super().__init__()
+                 reset_options: Sequence[dict[str, Any]] | None = None, eval_at_start: bool = True,
+                 verbose: int = 0) -> None:
+        super().__init__(verbose)
         if eval_every_steps < 1 or eval_episodes < 1:
             raise ValueError(f"eval_every_steps and eval_episodes must be ≥ 1, got {eval_every_steps}, "
                              f"{eval_episodes}")
@@ -120,6 +123,9 @@ class EvalCheckpointCallback(BaseCallback):
             path = f"{self.save_dir.name}/{name}"
         self.history.append(EvalRecord(int(self.num_timesteps), float(stats.returns.mean()),
                                        float(stats.success.mean()), path))
+        if self.verbose:
+            print(f"step {self.num_timesteps}: return {stats.returns.mean():.2f}, success {stats.success.mean():.2f}",
+                  file=sys.stderr, flush=True)
         if self.best_index < 0 or self.history[-1].mean_return > self.history[self.best_index].mean_return:
             self.best_index = len(self.history) - 1
             self._best_state = copy.deepcopy(self.model.policy.state_dict())

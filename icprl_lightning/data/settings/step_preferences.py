@@ -47,7 +47,7 @@ from icprl_lightning.data.settings.base import (
     steps,
 )
 from icprl_lightning.families.base import TaskFamily
-from icprl_lightning.preferences import label_agreement
+from icprl_lightning.preferences import expected_agreement, label_agreement
 from icprl_lightning.validation import check_choice
 
 FOLLOW = ("preferred", "rejected", "behavior", "first")
@@ -117,8 +117,11 @@ class StepPreferences(MDPSetting):
                     preferred[h, rows], utility[:, h, rows] = y, u
                     roll.step(self._next_action(y, both, first, second))
         # the statistics are means over all pairs: the same in either layout
+        gap = np.abs(utility[0] - utility[1])
         stats = {"label_agreement": label_agreement(utility[0], utility[1], preferred),
-                 "tie_fraction": float(np.mean(utility[0] == utility[1])), **answers}
+                 "tie_fraction": float(np.mean(utility[0] == utility[1])),
+                 "median_utility_gap": float(np.median(gap[gap != 0])) if np.any(gap != 0) else 0.0,
+                 "expected_agreement_by_bt_temperature": expected_agreement(utility[0], utility[1]), **answers}
         states, optimal = _row_major(states), _row_major(optimal)
         arrays = {"states": states, "actions": _row_major(pair[0]), "alt_actions": _row_major(pair[1]),
                   "preferred": _row_major(preferred)}

@@ -87,6 +87,7 @@ class ReachOracleState(NamedTuple):
     mocap: np.ndarray      # [B, 3] mocap target the hand is welded to; actions move it by 0.01·a
     goal: np.ndarray       # [B, 3]
     t: int                 # steps taken in the current episode
+    obs: np.ndarray | None = None  # [B, 39] float32 observation with the goal *visible* (the SAC oracle's input)
 
 
 def latent_reward(tcp: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -241,11 +242,14 @@ class ReachVectorEnv(gym.vector.VectorEnv):
         return self._masked_obs()
 
     def oracle_state(self) -> ReachOracleState:
-        """Hand, previous hand, TCP, mocap and goal per env (copies): for oracles and evaluation only."""
+        """Hand, previous hand, TCP, mocap, goal and the goal-visible observation per env (copies): for
+        oracles and evaluation only."""
         obs = self._pool.arrays["obs"]
+        visible = obs.astype(np.float32)
+        visible[:, GOAL_SLICE] = self._goals
         return ReachOracleState(hand=obs[:, 0:3].copy(), prev_hand=obs[:, 18:21].copy(),
                                 tcp=self._pool.arrays["tcp"].copy(), mocap=self._pool.arrays["mocap"].copy(),
-                                goal=self._goals.copy(), t=self.t)
+                                goal=self._goals.copy(), t=self.t, obs=visible)
 
     def close_extras(self, **kwargs: object) -> None:
         self._pool.close()

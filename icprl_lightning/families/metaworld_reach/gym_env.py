@@ -87,7 +87,8 @@ class ReachGoalEnv(gym.Env):
         raw = self._raw_obs
         return ReachOracleState(hand=raw[None, 0:3].copy(), prev_hand=raw[None, 18:21].copy(),
                                 tcp=self._env.tcp_center[None].copy(), mocap=self._env.data.mocap_pos[0][None].copy(),
-                                goal=self.goal[None].copy(), t=self.t)
+                                goal=self.goal[None].copy(), t=self.t,
+                                obs=np.concatenate([raw[:36], self.goal]).astype(np.float32)[None])
 
     def _observe(self, obs: np.ndarray) -> np.ndarray:
         obs = obs.astype(np.float32)

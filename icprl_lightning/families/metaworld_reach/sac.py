@@ -44,9 +44,11 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import stable_baselines3
 import torch
+from gymnasium.wrappers import TransformReward
 from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import DummyVecEnv
 
@@ -126,7 +128,8 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
                      checkpoint_every: int | None = None, eval_episodes: int = 10, horizon: int = HORIZON,
                      targets: Mapping[str, float] = QUALITY_TARGETS, overwrite: bool = False,
                      extra: Mapping[str, Any] | None = None, n_envs: int = 1,
-                     report_splits: Mapping[str, np.ndarray] | None = None, report_episodes_per_goal: int = 4
+                     report_splits: Mapping[str, np.ndarray] | None = None, report_episodes_per_goal: int = 4,
+                     reward_scale: float = 1.0, sac_kwargs: Mapping[str, Any] | None = None, verbose: int = 0
                      ) -> Path:
     """Train one goal-conditioned SAC on ``goals`` [G, 3], save checkpoints, pick the behavior policies.
 
@@ -135,9 +138,15 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
     is reported on each goal set of ``report_splits`` (e.g. train and test goals; ``split_report``).
     Returns ``out``, written atomically. ``overwrite`` replaces only an oracle directory (its
     ``summary.json`` of this schema); anything else is refused.
+
+    ``reward_scale`` multiplies the latent reward SAC learns from (evaluation returns stay latent); the
+    critic's Q̂ is divided by it again in ``SACOracle.q_values``, so A* is in latent-return units.
+    ``sac_kwargs`` override SB3's defaults (e.g. ``learning_rate``, ``gradient_steps``, ``batch_size``).
     """
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
+    if not reward_scale > 0:
+        raise ValueError(f"reward_scale must be > 0, got {reward_scale}")
     out = Path(out)
     if (out.exists() or out.is_symlink()) and not overwrite:
         raise FileExistsError(f"{out} exists; delete it or pass overwrite=True (--overwrite)")
@@ -149,10 +158,15 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
         eval_env = ReachGoalEnv(goals, horizon=horizon, goal_visible=True)
         options = [{"goal_index": i % len(goals)} for i in range(eval_episodes)]
         callback = EvalCheckpointCallback(eval_env, every, eval_episodes, eval_seed, stochastic_act(noise_seed),
-                                          save_dir=tmp / "checkpoints", reset_options=options, eval_at_start=True)
-        train_env = (ReachGoalEnv(goals, horizon=horizon, goal_visible=True) if n_envs == 1 else
-                     DummyVecEnv([lambda: ReachGoalEnv(goals, horizon=horizon, goal_visible=True)] * n_envs))
-        model = SAC("MlpPolicy", train_env, seed=model_seed, device="cpu")
+                                          save_dir=tmp / "checkpoints", reset_options=options, eval_at_start=True,
+                                          verbose=verbose)
+
+        def make_train_env() -> gym.Env:
+            env = ReachGoalEnv(goals, horizon=horizon, goal_visible=True)
+            return env if reward_scale == 1.0 else TransformReward(env, lambda r: reward_scale * r)
+
+        train_env = make_train_env() if n_envs == 1 else DummyVecEnv([make_train_env] * n_envs)
+        model = SAC("MlpPolicy", train_env, seed=model_seed, device="cpu", **(sac_kwargs or {}))
         start = time.perf_counter()
         model.learn(total_timesteps=timesteps, callback=callback)
         seconds = time.perf_counter() - start
@@ -164,7 +178,7 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
                   for name, g in (report_splits or {}).items()}
         summary = {
             "schema_version": SCHEMA_VERSION,
-            "algorithm": f"SAC (stable-baselines3 {stable_baselines3.__version__}, default hyperparameters), "
+            "algorithm": f"SAC (stable-baselines3 {stable_baselines3.__version__}, defaults except sac_kwargs), "
                          "goal-conditioned (goal in obs[36:39])",
             "goals": goals, "timesteps": timesteps, "horizon": horizon, "seed": seed, "model_seed": model_seed,
             "checkpoint_every": every, "eval_episodes": eval_episodes, "eval_seed": eval_seed,
@@ -173,7 +187,8 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
                                                       "return": final.mean_return, "success": final.success},
             "final_beats_uniform": bool(final.mean_return > uniform),
             "checkpoints": [r._asdict() for r in callback.history], "calibration": calibration,
-            "final_by_split": splits, "n_envs": n_envs, "train_seconds": seconds, **(extra or {})}
+            "final_by_split": splits, "n_envs": n_envs, "reward_scale": reward_scale,
+            "sac_kwargs": dict(sac_kwargs or {}), "train_seconds": seconds, **(extra or {})}
         with open(tmp / SUMMARY, "w") as f:
             json.dump(jsonable(summary), f, indent=2)
     return out
@@ -220,7 +235,7 @@ class SACOracle:
         return sample_policy_actions(model, self._check_obs(obs), generator)
 
     def q_values(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Q̂(s, a) [B]: the minimum of SAC's twin critics."""
+        """Q̂(s, a) [B]: the minimum of SAC's twin critics, in latent-return units (÷ ``reward_scale``)."""
         obs = self._check_obs(obs)
         actions = np.asarray(actions, dtype=np.float32)
         if actions.shape != (len(obs), ACTION_DIM):
@@ -228,7 +243,8 @@ class SACOracle:
         scaled = self.model.policy.scale_action(actions)
         with torch.no_grad():
             qs = self.model.critic(torch.as_tensor(obs), torch.as_tensor(scaled, dtype=torch.float32))
-        return torch.cat(qs, dim=1).min(dim=1).values.numpy().astype(np.float64)
+        q = torch.cat(qs, dim=1).min(dim=1).values.numpy().astype(np.float64)
+        return q / self.summary.get("reward_scale", 1.0)
 
     def advantage(self, obs: np.ndarray, actions: np.ndarray, n_samples: int = 64, seed: int = 0) -> np.ndarray:
         """A*(s, a) ≈ Q̂(s, a) − mean over ``n_samples`` actions a' ~ π(·|s) of Q̂(s, a') [B]."""
@@ -263,6 +279,12 @@ def main(args: Sequence[str] | None = None) -> Path:
     parser.add_argument("--family-seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for these MLPs)")
     parser.add_argument("--n-envs", type=int, default=1, help="envs collecting at once (n transitions per update)")
+    parser.add_argument("--reward-scale", type=float, default=1.0, help="SAC learns from this × the latent reward")
+    parser.add_argument("--learning-rate", type=float, default=None, help="default: SB3's 3e-4")
+    parser.add_argument("--gradient-steps", type=int, default=None, help="per vector step; default: SB3's 1")
+    parser.add_argument("--batch-size", type=int, default=None, help="default: SB3's 256")
+    parser.add_argument("--gamma", type=float, default=None, help="discount; default: SB3's 0.99")
+    parser.add_argument("--verbose", action="store_true", help="print each evaluation to stderr")
     parser.add_argument("--overwrite", action="store_true")
     parser.add_argument("--out", type=Path, required=True)
     ns = parser.parse_args(args)
@@ -276,7 +298,12 @@ def main(args: Sequence[str] | None = None) -> Path:
     out = train_sac_oracle(goals, ns.out, ns.timesteps, ns.seed, ns.checkpoint_every, ns.eval_episodes, ns.horizon,
                            overwrite=ns.overwrite, extra={"goal_split": ns.goals, "goal_index": ns.goal_index,
                                                           "family_seed": ns.family_seed, "command": command},
-                           n_envs=ns.n_envs, report_splits={"train": family.train_goals, "test": family.test_goals})
+                           n_envs=ns.n_envs, report_splits={"train": family.train_goals, "test": family.test_goals},
+                           reward_scale=ns.reward_scale, verbose=int(ns.verbose),
+                           sac_kwargs={k: v for k, v in (("learning_rate", ns.learning_rate),
+                                                         ("gradient_steps", ns.gradient_steps),
+                                                         ("batch_size", ns.batch_size),
+                                                         ("gamma", ns.gamma)) if v is not None})
     summary = SACOracle(out).summary
     for name, c in summary["calibration"].items():
         print(f"{name}: step {c['step']}, normalized {c['achieved']:.2f} (target {c['target']}), "

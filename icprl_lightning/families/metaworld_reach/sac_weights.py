@@ -1,0 +1,253 @@
+"""The SAC oracle as plain weights: a small, versioned, checksummed directory that loads without pickle.
+
+A trained SAC oracle (``sac.py``) is a directory of Stable-Baselines3 zips, which ``SAC.load`` reads by
+unpickling; they are large (optimizer states, target critics) and not something to load from an untrusted
+place. ``export_sac_oracle`` keeps only what data generation needs (appendix "Pretraining Data
+Generation"):
+
+* the actor of each behavior checkpoint, chosen by its return normalized between uniform actions (0) and
+  the final policy (1), e.g. the 20/40/50/80% policies, and of the final (converged) policy π;
+* the final twin critic, whose minimum Q̂ gives A*(s, a) ≈ Q̂(s, a) − E_{a'~π} Q̂(s, a') (its per-state
+  differences are the I-PRL labels' utility differences);
+
+as ``torch.save`` state dicts with SB3's own key names, an ``oracle.json`` (what each file is, the training
+run's summary, its command) and ``SHA256SUMS``. ``SACOracleWeights`` verifies every checksum, loads the
+tensors with ``torch.load(weights_only=True)`` into ``SACActor`` / ``SACCritic`` (the same layers as SB3's
+``MlpPolicy``: 256-256 ReLU MLPs; log-std clamped to [−20, 2]; a tanh-squashed Gaussian), and computes
+actions and Q̂ in NumPy-in, NumPy-out batches. Q̂ is divided by the run's ``reward_scale`` (latent-return
+units). Tested against SB3's own networks on the same weights.
+
+Export (from a training run's directory; ``--targets`` are the behavior policies' normalized returns):
+
+    python -m icprl_lightning.families.metaworld_reach.sac_weights runs/sac_oracle/A \\
+        --out icprl_lightning/families/metaworld_reach/sac_oracle_v1
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, OBS_DIM
+from icprl_lightning.io import staged_directory
+
+MANIFEST = "oracle.json"
+CHECKSUMS = "SHA256SUMS"
+FORMAT_VERSION = 1
+WHAT = "exported SAC oracle directory"
+LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SB3's clamp of the actor's log-std
+HIDDEN = 256
+FINAL = 1.0  # the level of the final (converged) policy
+DEFAULT_TARGETS = (0.2, 0.4, 0.5, 0.8)  # I-PRL's 20/80% pair, the 40% medium contexts, T-PRL's 50%
+
+
+def _mlp(inputs: int, outputs: int | None) -> nn.Sequential:
+    layers: list[nn.Module] = [nn.Linear(inputs, HIDDEN), nn.ReLU(), nn.Linear(HIDDEN, HIDDEN), nn.ReLU()]
+    if outputs is not None:
+        layers.append(nn.Linear(HIDDEN, outputs))
+    return nn.Sequential(*layers)
+
+
+class SACActor(nn.Module):
+    """SB3's SAC actor for goal-visible Reach observations [B, 39] -> squashed-Gaussian parameters [B, 4]."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.latent_pi = _mlp(OBS_DIM, None)
+        self.mu = nn.Linear(HIDDEN, ACTION_DIM)
+        self.log_std = nn.Linear(HIDDEN, ACTION_DIM)
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        latent = self.latent_pi(obs)
+        return self.mu(latent), self.log_std(latent).clamp(LOG_STD_MIN, LOG_STD_MAX)
+
+
+class SACCritic(nn.Module):
+    """SB3's twin critic: Q_0, Q_1 of (obs [B, 39], action [B, 4]); ``forward`` gives their minimum [B]."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.qf0 = _mlp(OBS_DIM + ACTION_DIM, 1)
+        self.qf1 = _mlp(OBS_DIM + ACTION_DIM, 1)
+
+    def forward(self, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        x = torch.cat([obs, actions], dim=-1)
+        return torch.minimum(self.qf0(x), self.qf1(x)).squeeze(-1)
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _level_name(level: float) -> str:
+    return f"{round(100 * level):03d}"
+
+
+def export_sac_oracle(run_dir: str | Path, out: str | Path, targets: Sequence[float] = DEFAULT_TARGETS,
+                      overwrite: bool = False) -> Path:
+    """Write the weights-only oracle of a training run (``sac.py``'s directory) to ``out``; see the docstring.
+
+    For each target, the checkpoint whose sampled-action evaluation return, normalized between uniform (0)
+    and the final checkpoint (1), is closest (ties: the earlier one); the final policy is level 1.0.
+    """
+    from icprl_lightning.families.metaworld_reach.sac import SACOracle, calibrate_checkpoints
+    from icprl_lightning.families.sb3_common import EvalRecord
+
+    source = SACOracle(run_dir)
+    summary = source.summary
+    for t in targets:
+        if not 0.0 < t < 1.0:
+            raise ValueError(f"targets must lie strictly between 0 and 1, got {t}")
+    records = [EvalRecord(**r) for r in summary["checkpoints"]]
+    chosen = calibrate_checkpoints(records, summary["uniform_return"], summary["expert_return"],
+                                   {_level_name(t): t for t in targets})
+    out = Path(out)
+    if (out.exists() or out.is_symlink()) and not overwrite:
+        raise FileExistsError(f"{out} exists; delete it or pass overwrite=True (--overwrite)")
+    with staged_directory(out, marker=MANIFEST, schema_version=FORMAT_VERSION, what=WHAT,
+                          overwrite=overwrite) as tmp:
+        policies = {}
+        for name, c in {**chosen, _level_name(FINAL): {"target": FINAL, "path": summary["final"]["path"],
+                                                       "step": summary["final"]["step"],
+                                                       "return": summary["final"]["return"],
+                                                       "success": summary["final"]["success"],
+                                                       "achieved": 1.0}}.items():
+            model = source._load(c["path"])
+            torch.save(model.actor.state_dict(), tmp / f"actor_{name}.pt")
+            policies[name] = {"level": c["target"], "file": f"actor_{name}.pt", "step": c["step"],
+                              "eval_return": c["return"], "eval_success": c["success"],
+                              "normalized_return": c["achieved"]}
+        torch.save(source.model.critic.state_dict(), tmp / "critic_final.pt")
+        manifest = {"schema_version": FORMAT_VERSION, "policies": policies, "critic": "critic_final.pt",
+                    "reward_scale": summary.get("reward_scale", 1.0),
+                    "normalization": "sampled-action evaluation return, (R - R_uniform) / (R_final - R_uniform)",
+                    "training": {k: summary.get(k) for k in
+                                 ("algorithm", "command", "goals", "timesteps", "n_envs", "sac_kwargs", "seed",
+                                  "uniform_return", "expert_return", "final", "final_by_split", "train_seconds",
+                                  "eval_episodes", "checkpoint_every")},
+                    "curve": [[r.step, r.mean_return, r.success] for r in records]}
+        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2))
+        files = sorted(p.name for p in tmp.iterdir() if p.name != CHECKSUMS)
+        (tmp / CHECKSUMS).write_text("".join(f"{_sha256(tmp / f)}  {f}\n" for f in files))
+    return out
+
+
+class SACOracleWeights:
+    """An exported SAC oracle directory, checksums verified, tensors loaded without unpickling objects.
+
+    ``levels`` are the exported policies' normalized returns (1.0: the final policy π).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not (self.path / MANIFEST).is_file() or not (self.path / CHECKSUMS).is_file():
+            raise FileNotFoundError(f"{self.path} is not an exported SAC oracle (no {MANIFEST} / {CHECKSUMS}); "
+                                    "export one with `python -m icprl_lightning.families.metaworld_reach.sac_weights`")
+        self._verify()
+        self.manifest = json.loads((self.path / MANIFEST).read_text())
+        if self.manifest.get("schema_version") != FORMAT_VERSION:
+            raise ValueError(f"{self.path / MANIFEST}: schema {self.manifest.get('schema_version')}, expected "
+                             f"{FORMAT_VERSION}")
+        self.reward_scale = float(self.manifest["reward_scale"])
+        self._actors = {}
+        for entry in self.manifest["policies"].values():
+            self._actors[float(entry["level"])] = self._load(SACActor(), entry["file"])
+        self.critic = self._load(SACCritic(), self.manifest["critic"])
+
+    def _verify(self) -> None:
+        listed = {}
+        for line in (self.path / CHECKSUMS).read_text().splitlines():
+            digest, _, name = line.partition("  ")
+            listed[name] = digest
+        for name, digest in listed.items():
+            if "/" in name or name.startswith(".") or not (self.path / name).is_file():
+                raise ValueError(f"{self.path / CHECKSUMS}: bad or missing entry {name!r}")
+            if _sha256(self.path / name) != digest:
+                raise ValueError(f"{self.path / name}: checksum mismatch (expected {digest}); the oracle is "
+                                 "corrupt or was edited: re-export it")
+        if MANIFEST not in listed:
+            raise ValueError(f"{self.path / CHECKSUMS} does not cover {MANIFEST}")
+
+    def _load(self, module: nn.Module, file: str) -> nn.Module:
+        state = torch.load(self.path / file, map_location="cpu", weights_only=True)
+        module.load_state_dict(state)
+        return module.eval()
+
+    @property
+    def levels(self) -> tuple[float, ...]:
+        return tuple(sorted(self._actors))
+
+    def policy_info(self, level: float) -> Mapping[str, Any]:
+        return next(e for e in self.manifest["policies"].values() if float(e["level"]) == self._level(level))
+
+    def _level(self, level: float) -> float:
+        for known in self._actors:
+            if abs(known - float(level)) < 1e-9:
+                return known
+        raise KeyError(f"the SAC oracle at {self.path} has no policy at level {level}; it has {list(self.levels)}")
+
+    @staticmethod
+    def _obs(obs: np.ndarray) -> torch.Tensor:
+        obs = np.asarray(obs, dtype=np.float32)
+        if obs.ndim != 2 or obs.shape[1] != OBS_DIM:
+            raise ValueError(f"obs must be goal-visible observations of shape [B, {OBS_DIM}], got {list(obs.shape)}")
+        return torch.from_numpy(obs)
+
+    def mean_actions(self, obs: np.ndarray, level: float = FINAL) -> np.ndarray:
+        """tanh(μ(s)) [B, 4] of the policy at ``level`` (the final policy's is DPT/DP²T's label)."""
+        with torch.no_grad():
+            mean, _ = self._actors[self._level(level)](self._obs(obs))
+            return torch.tanh(mean).numpy()
+
+    def sample_actions(self, obs: np.ndarray, level: float, noise: np.ndarray) -> np.ndarray:
+        """tanh(μ(s) + σ(s) ε) [B, 4] with the given standard-normal ``noise`` ε [B, 4]."""
+        with torch.no_grad():
+            mean, log_std = self._actors[self._level(level)](self._obs(obs))
+            eps = torch.as_tensor(np.asarray(noise, dtype=np.float32)).reshape(mean.shape)
+            return torch.tanh(mean + log_std.exp() * eps).numpy()
+
+    def q_values(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """Q̂(s, a) [..., B] for actions [..., B, 4] (leading candidate axes allowed), latent-return units."""
+        o = self._obs(obs)
+        a = torch.as_tensor(np.asarray(actions, dtype=np.float32))
+        if a.shape[-2:] != (len(o), ACTION_DIM):
+            raise ValueError(f"actions must have shape [..., {len(o)}, {ACTION_DIM}], got {list(a.shape)}")
+        with torch.no_grad():
+            q = self.critic(o.expand(*a.shape[:-1], OBS_DIM), a.clamp(-1.0, 1.0))
+        return q.numpy().astype(np.float64) / self.reward_scale
+
+    def advantage(self, obs: np.ndarray, actions: np.ndarray, n_samples: int = 64, seed: int = 0) -> np.ndarray:
+        """A*(s, a) ≈ Q̂(s, a) − mean over ``n_samples`` actions a' ~ π(·|s) of Q̂(s, a') [B]."""
+        obs = np.asarray(obs, dtype=np.float32)
+        noise = np.random.default_rng(seed).standard_normal((n_samples, len(obs), ACTION_DIM))
+        sampled = np.stack([self.sample_actions(obs, FINAL, e) for e in noise])  # [M, B, 4]
+        return self.q_values(obs, actions) - self.q_values(obs, sampled).mean(axis=0)
+
+
+def main(args: Sequence[str] | None = None) -> Path:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("run_dir", type=Path, help="a training run of `python -m ...metaworld_reach.sac`")
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--targets", type=float, nargs="+", default=list(DEFAULT_TARGETS))
+    parser.add_argument("--overwrite", action="store_true")
+    ns = parser.parse_args(args)
+    out = export_sac_oracle(ns.run_dir, ns.out, ns.targets, ns.overwrite)
+    oracle = SACOracleWeights(out)
+    for level in oracle.levels:
+        p = oracle.policy_info(level)
+        print(f"level {level}: step {p['step']}, eval return {p['eval_return']:.2f}, success {p['eval_success']:.2f}, "
+              f"normalized {p['normalized_return']:.2f}", file=sys.stderr)
+    return out
+
+
+if __name__ == "__main__":
+    main()

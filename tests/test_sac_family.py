@@ -1,0 +1,207 @@
+"""The exported SAC oracle (weights only, checksummed) and the Reach family built on it (the paper's recipe),
+on a tiny SAC run: plumbing, equality with SB3's networks, safety and determinism, not learning."""
+
+from __future__ import annotations
+
+import json
+import pickle
+
+import numpy as np
+import pytest
+import torch
+
+from icprl_lightning.data.settings import RewardContexts, StepPreferences, TrajectoryPairs
+from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
+from icprl_lightning.families.metaworld_reach.sac import SACOracle, train_sac_oracle
+from icprl_lightning.families.metaworld_reach.sac_family import DEFAULT_ORACLE, ReachSACTaskFamily
+from icprl_lightning.families.metaworld_reach.sac_weights import (
+    CHECKSUMS,
+    MANIFEST,
+    SACOracleWeights,
+    _sha256,
+    export_sac_oracle,
+)
+
+GOALS = np.array([[0.05, 0.85, 0.2], [-0.05, 0.82, 0.1]])
+TARGETS = (0.2, 0.4, 0.5, 0.8)
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sac") / "run"
+    return train_sac_oracle(GOALS, out, timesteps=200, checkpoint_every=50, eval_episodes=2, horizon=30,
+                            reward_scale=10.0)
+
+
+@pytest.fixture(scope="module")
+def exported(run_dir, tmp_path_factory):
+    return export_sac_oracle(run_dir, tmp_path_factory.mktemp("export") / "oracle", TARGETS)
+
+
+def _obs(n: int, seed: int = 0) -> np.ndarray:
+    env = ReachGoalEnv(GOALS, horizon=30, goal_visible=True)
+    rng = np.random.default_rng(seed)
+    obs = [env.reset(seed=seed, options={"goal_index": 0})[0]]
+    for _ in range(n - 1):
+        obs.append(env.step(rng.uniform(-1, 1, 4).astype(np.float32))[0])
+    return np.stack(obs)
+
+
+def test_export_writes_weights_manifest_and_checksums(run_dir, exported):
+    names = sorted(p.name for p in exported.iterdir())
+    assert names == sorted([CHECKSUMS, MANIFEST, "critic_final.pt", "actor_020.pt", "actor_040.pt", "actor_050.pt",
+                            "actor_080.pt", "actor_100.pt"])
+    listed = dict(line.split("  ")[::-1] for line in (exported / CHECKSUMS).read_text().splitlines())
+    assert set(listed) == set(names) - {CHECKSUMS}
+    assert all(_sha256(exported / f) == d for f, d in listed.items())
+    manifest = json.loads((exported / MANIFEST).read_text())
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert manifest["reward_scale"] == 10.0 and manifest["policies"]["100"]["step"] == summary["final"]["step"]
+    for level in TARGETS:
+        assert manifest["policies"][f"{round(100 * level):03d}"]["step"] in [c["step"] for c in summary["checkpoints"]]
+    assert not list(exported.parent.glob(".oracle.tmp-*"))
+
+
+def test_weights_reproduce_sb3_actions_and_scaled_q(run_dir, exported):
+    sb3 = SACOracle(run_dir)  # the final SB3 model: reward_scale divides its Q
+    ours = SACOracleWeights(exported)
+    obs = _obs(6)
+    np.testing.assert_allclose(ours.mean_actions(obs), sb3.model.predict(obs, deterministic=True)[0], atol=1e-6)
+    actions = np.random.default_rng(1).uniform(-1, 1, (6, 4)).astype(np.float32)
+    np.testing.assert_allclose(ours.q_values(obs, actions), sb3.q_values(obs, actions), rtol=1e-5, atol=1e-6)
+    stacked = np.stack([actions, -actions])  # candidates [K, B, 4]
+    np.testing.assert_allclose(ours.q_values(obs, stacked)[1], sb3.q_values(obs, -actions), rtol=1e-5, atol=1e-6)
+    noise = np.random.default_rng(2).standard_normal((6, 4))
+    mean, log_std, _ = sb3.model.actor.get_action_dist_params(torch.as_tensor(obs))
+    expected = torch.tanh(mean + log_std.exp() * torch.as_tensor(noise, dtype=torch.float32)).detach().numpy()
+    np.testing.assert_allclose(ours.sample_actions(obs, 1.0, noise), expected, atol=1e-6)
+    assert abs(ours.advantage(obs, ours.mean_actions(obs), n_samples=256).mean()) < 1.0  # centred on π, roughly
+    with pytest.raises(KeyError, match="no policy at level 0.3"):
+        ours.sample_actions(obs, 0.3, noise)
+    with pytest.raises(ValueError, match=r"shape \[B, 39\]"):
+        ours.mean_actions(obs[:, :36])
+
+
+def test_tampered_or_pickled_files_are_refused(exported, tmp_path):
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(exported, copy)
+    data = bytearray((copy / "actor_020.pt").read_bytes())
+    data[-20] ^= 0xFF
+    (copy / "actor_020.pt").write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="checksum mismatch"):
+        SACOracleWeights(copy)
+
+    class Payload:
+        def __reduce__(self):
+            return (print, ("unpickled!",))
+
+    shutil.rmtree(copy)
+    shutil.copytree(exported, copy)
+    torch.save({"latent_pi.0.weight": Payload()}, copy / "actor_020.pt")
+    lines = [f"{_sha256(copy / f)}  {f}" for f in sorted(p.name for p in copy.iterdir() if p.name != CHECKSUMS)]
+    (copy / CHECKSUMS).write_text("\n".join(lines) + "\n")  # a consistent but malicious directory
+    with pytest.raises(pickle.UnpicklingError):
+        SACOracleWeights(copy)
+    with pytest.raises(FileNotFoundError, match="not an exported SAC oracle"):
+        SACOracleWeights(tmp_path)
+
+
+@pytest.fixture(scope="module")
+def family(exported):
+    return ReachSACTaskFamily(exported, n_train=2, n_test=1, horizon=12, num_workers=0)
+
+
+def test_behavior_levels_are_sac_samples_uniform_at_zero_and_deterministic(family):
+    with family.make_env(np.repeat(family.train_goals, 2, axis=0)) as env:
+        env.reset(seed=0)
+        state = env.oracle_state()
+    assert state.obs.shape == (4, 39) and np.allclose(state.obs[:, 36:39], np.repeat(family.train_goals, 2, axis=0))
+    levels = np.array([0.0, 0.2, 0.8, 1.0])
+    a = family.oracle.behavior_actions(state, levels, np.random.default_rng(5))
+    b = family.oracle.behavior_actions(state, levels, np.random.default_rng(5))
+    np.testing.assert_array_equal(a, b)
+    rng = np.random.default_rng(5)
+    noise, uniform = rng.standard_normal((4, 4)), rng.uniform(-1, 1, (4, 4)).astype(np.float32)
+    np.testing.assert_array_equal(a[0], uniform[0])
+    np.testing.assert_allclose(a[2], family.weights.sample_actions(state.obs[2:3], 0.8, noise[2:3])[0], atol=1e-7)
+    np.testing.assert_allclose(family.oracle.optimal_actions(state), family.weights.mean_actions(state.obs))
+    u = family.oracle.utility(state, np.stack([a, -a]))
+    assert u.shape == (2, 4)
+
+
+def test_sac_family_generates_the_paper_recipes(family):
+    ipref = StepPreferences(first_policy="low", train_policy="high", bt_temperature=0.02, trajectories_per_task=2,
+                            val_trajectories_per_task=1, eval_contexts_per_task=1, calibration_episodes=2,
+                            reference_episodes=1)
+    splits, info = ipref.generate(family, progress=False)
+    assert splits["train"]["states"].shape == (4, 12, 39) and np.all(splits["train"]["states"][..., 36:39] == 0)
+    assert {q: c["mixing"] for q, c in info["calibration"].items()} == {"low": 0.2, "medium": 0.4, "high": 0.8}
+    assert 0.0 <= info["train_statistics"]["label_agreement"] <= 1.0
+    ref = info["test_reference"]["high"]
+    assert {"behavior_return", "sac_return", "expert_return", "uniform_return"} <= set(ref)
+    assert family.config()["expert"] == "sac" and len(family.config()["sac_oracle"]["sha256"]) == 64
+    again, _ = ipref.generate(family, progress=False)
+    np.testing.assert_array_equal(again["train"]["preferred"], splits["train"]["preferred"])
+    # DPT's labels are π's mean actions at the query states
+    np.testing.assert_allclose(splits["train"]["optimal_actions"][:1, :3].shape, (1, 3, 4))
+    tprl = TrajectoryPairs(train_policy="pretraining", trajectories_per_task=1, val_trajectories_per_task=1,
+                           eval_contexts_per_task=1, calibration_episodes=2, reference_episodes=1)
+    _, info = tprl.generate(family, progress=False)
+    assert info["calibration"]["pretraining"]["mixing"] == 0.5
+    contexts = RewardContexts(trajectories_per_task=1, val_trajectories_per_task=1, eval_contexts_per_task=1,
+                              calibration_episodes=2, reference_episodes=1, quality_targets=(0.2, 0.3, 0.8))
+    with pytest.raises(KeyError, match="no policy at level 0.3"):
+        contexts.generate(family, progress=False)
+
+
+@pytest.mark.skipif(not DEFAULT_ORACLE.exists(), reason="the committed SAC oracle is not exported yet")
+def test_the_committed_oracle_loads_and_verifies():
+    oracle = SACOracleWeights(DEFAULT_ORACLE)
+    assert oracle.levels == (0.2, 0.4, 0.5, 0.8, 1.0)
+    manifest = oracle.manifest
+    assert manifest["training"]["command"].startswith("python -m icprl_lightning.families.metaworld_reach.sac ")
+
+
+def test_overlays_put_every_reach_config_on_the_sac_recipe(exported, tmp_path):
+    from factories import REPO
+
+    from icprl_lightning.data.config import datamodule_from_config
+
+    local = tmp_path / "local.yaml"  # the tiny oracle instead of the committed one
+    local.write_text(f"data:\n  init_args:\n    family:\n      init_args:\n        oracle_dir: {exported}\n")
+    sac = str(REPO / "configs/overlays/sac_oracle.yaml")
+    for config in ("icpo_metaworld", "dp2t_metaworld", "dpt_metaworld", "dp2t_metaworld_tprl", "icrg_metaworld"):
+        dm = datamodule_from_config(str(REPO / f"configs/{config}.yaml"), sac, str(local), root_dir=str(tmp_path))
+        assert isinstance(dm.family, ReachSACTaskFamily) and dm.family.oracle_dir == exported, config
+    dpt = datamodule_from_config(str(REPO / "configs/dpt_metaworld.yaml"), sac, str(local),
+                                 str(REPO / "configs/overlays/converged_contexts.yaml"), root_dir=str(tmp_path))
+    assert (dpt.setting.train_policy, dpt.setting.pretraining_target) == ("pretraining", 1.0)
+
+
+def test_scale_curves_tabulate_and_plot_what_is_there(tmp_path):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import reach_scale_curves
+
+    def row(value):
+        return {"return": -10.0, "normalized_return": value, "normalized_return_sem": 0.01, "training_seeds": 3}
+
+    for recipe, k, icpo in (("sac", 1, 0.5), ("sac", 2, 0.6), ("scripted", 1, 0.7)):
+        results = {m: {q: row(v) for q in ("low", "medium", "high")}
+                   for m, v in (("DPT", 0.9), ("DP2T", 0.8), ("ICPO", icpo), ("behavior", 0.3))}
+        diagnostics = {m: {c: {"medium": row(0.1)} for c in ("flipped_labels", "random_labels", "other_task")}
+                       for m in ("DP2T", "ICPO")}
+        (tmp_path / f"metaworld_{recipe}_x{k}.json").write_text(json.dumps({"results": results,
+                                                                             "diagnostics": diagnostics}))
+    reach_scale_curves.main(["--results", str(tmp_path), "--out", str(tmp_path / "scale")])
+    md = (tmp_path / "scale.md").read_text()
+    assert "| ICPO | 40 | 3 | 0.60 ± 0.01 | 0.60 ± 0.01 | 0.60 ± 0.01 |" in md
+    assert "- ICPO, 20 contexts / goal: 0.50 / 0.10 / 0.10 / 0.10" in md
+    assert "Not run: 80, 160 contexts per goal." in md and "Not run: 40, 80, 160" in md
+    assert (tmp_path / "scale.png").stat().st_size > 0
