@@ -144,6 +144,7 @@ def _tprl_runs() -> tuple[Run, ...]:
 # Meta-World Reach I-PRL (issue 13): the scripted recipe (the configs as they are) and the paper's (the committed
 # SAC oracle), at multiples of the configs' 20 contexts per training goal, the configs' 50 epochs each
 REACH_RECIPES = {"scripted": (), "sac": ("configs/overlays/sac_oracle.yaml",)}
+IPREF_OVERLAYS = {"scripted": (), "sac": ("configs/overlays/sac_oracle_ipref.yaml",)}
 RECIPE_TITLES = {"scripted": "scripted-expert recipe", "sac": "the paper's recipe (SAC oracle)"}
 REACH_SCALES = (1, 2, 4, 8)
 REACH_CONTEXTS_PER_GOAL = 20
@@ -152,12 +153,12 @@ REACH_CONTEXTS_PER_GOAL = 20
 def _reach_runs(recipe: str, scale: int) -> tuple[Run, ...]:
     """DPT, DP²T and ICPO on one Reach recipe at ``scale`` × 20 contexts per goal (DPT's training contexts from
     the converged policy on the SAC recipe, as the paper's)."""
-    overlays = REACH_RECIPES[recipe]
+    overlays, ipref = REACH_RECIPES[recipe], IPREF_OVERLAYS[recipe]
     data = ("--data.init_args.setting.init_args.trajectories_per_task", str(REACH_CONTEXTS_PER_GOAL * scale))
     dpt = (*overlays, "configs/overlays/converged_contexts.yaml") if recipe == "sac" else overlays
     return (Run("DPT", ("configs/dpt_metaworld.yaml", *dpt), data),
-            Run("DP2T", ("configs/dp2t_metaworld.yaml", *overlays), data),
-            Run("ICPO", ("configs/icpo_metaworld.yaml", *overlays), data))
+            Run("DP2T", ("configs/dp2t_metaworld.yaml", *ipref), data),
+            Run("ICPO", ("configs/icpo_metaworld.yaml", *ipref), data))
 
 
 def _reach_tables() -> tuple[Table, ...]:

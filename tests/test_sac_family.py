@@ -177,6 +177,11 @@ def test_overlays_put_every_reach_config_on_the_sac_recipe(exported, tmp_path):
     for config in ("icpo_metaworld", "dp2t_metaworld", "dpt_metaworld", "dp2t_metaworld_tprl", "icrg_metaworld"):
         dm = datamodule_from_config(str(REPO / f"configs/{config}.yaml"), sac, str(local), root_dir=str(tmp_path))
         assert isinstance(dm.family, ReachSACTaskFamily) and dm.family.oracle_dir == exported, config
+    for config in ("icpo_metaworld", "dp2t_metaworld"):
+        dm = datamodule_from_config(str(REPO / f"configs/{config}.yaml"),
+                                    str(REPO / "configs/overlays/sac_oracle_ipref.yaml"), str(local),
+                                    root_dir=str(tmp_path))
+        assert isinstance(dm.family, ReachSACTaskFamily) and dm.setting.bt_temperature == 0.01, config
     dpt = datamodule_from_config(str(REPO / "configs/dpt_metaworld.yaml"), sac, str(local),
                                  str(REPO / "configs/overlays/converged_contexts.yaml"), root_dir=str(tmp_path))
     assert (dpt.setting.train_policy, dpt.setting.pretraining_target) == ("pretraining", 1.0)

@@ -28,10 +28,21 @@ Advantage. A*(s, a) ≈ Q̂(s, a) − (1/M) Σ_m Q̂(s, a'_m), a'_m ~ π(·|s), 
 critics (the value SAC's own policy update uses). Averaged over actions drawn from π it is zero up to
 Monte Carlo error.
 
-Run (writes ``<out>/checkpoints/step_*.zip`` and ``<out>/summary.json`` through a temp directory renamed
-into place, so an interrupted run leaves nothing half-written):
+Hyperparameters. SB3's defaults (γ = 0.99, latent reward as is) learn and then lose Reach: a 200k-transition
+run reached 0.8 success at 110k and fell to 0.1 (docs/RESULTS.md). The committed oracle
+(``sac_oracle_v1``) was trained with the reward scaled by 10 (``--reward-scale``: Q̂ is divided by it again,
+so A* stays in latent-return units) and γ = 0.95 (``--gamma``), 4 envs collecting at once; everything else
+is SB3's default. On the same seed, γ = 0.99 with two gradient steps per vector step plateaued at about
+−9 (sampled) while γ = 0.95 reached −6.6 by 250k transitions.
 
-    python -m icprl_lightning.families.metaworld_reach.sac --goals train --timesteps 200000 --out data/sac_oracle
+Run (writes ``<out>/checkpoints/step_*.zip`` and ``<out>/summary.json`` through a temp directory renamed
+into place, so an interrupted run leaves nothing half-written), then export the weights the data recipe
+reads (``sac_weights.py``):
+
+    python -m icprl_lightning.families.metaworld_reach.sac --goals all --n-envs 4 --reward-scale 10 \
+        --gamma 0.95 --timesteps 400000 --checkpoint-every 10000 --eval-episodes 20 --out runs/sac_oracle/C
+    python -m icprl_lightning.families.metaworld_reach.sac_weights runs/sac_oracle/C \
+        --out icprl_lightning/families/metaworld_reach/sac_oracle_v1
 """
 
 from __future__ import annotations
