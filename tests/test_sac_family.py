@@ -210,3 +210,29 @@ def test_scale_curves_tabulate_and_plot_what_is_there(tmp_path):
     assert "- ICPO, 20 contexts / goal: 0.50 / 0.10 / 0.10 / 0.10" in md
     assert "Not run: 80, 160 contexts per goal." in md and "Not run: 40, 80, 160" in md
     assert (tmp_path / "scale.png").stat().st_size > 0
+
+
+def test_from_scratch_curve_normalizes_per_goal_and_finds_the_crossing(tmp_path, capsys):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import sac_from_scratch_curve
+
+    def run(returns):  # uniform −40, expert −10: normalized (R + 40) / 30
+        return {"eval_curve": [[150 * (i + 1), r, 0.0] for i, r in enumerate(returns)],
+                "reference_returns": {"uniform": -40.0, "expert": -10.0}}
+
+    scratch = {"horizon": 150,
+               "per_goal": [{"runs": [run([-40.0, -31.0, -25.0])]}, {"runs": [run([-34.0, -25.0, -19.0])]}]}
+    (tmp_path / "scratch.json").write_text(json.dumps(scratch))
+    (tmp_path / "zero.json").write_text(json.dumps({"results": {"ICPO": {"medium": {"normalized_return": 0.5}},
+                                                                "expert": {"medium": {"normalized_return": 1.0}}}}))
+    episodes, mean, _ = sac_from_scratch_curve.curve(scratch)
+    np.testing.assert_allclose(episodes, [1, 2, 3])
+    np.testing.assert_allclose(mean, [0.1, 0.4, 0.6])
+    sac_from_scratch_curve.main([str(tmp_path / "scratch.json"), "--zero-shot", str(tmp_path / "zero.json"),
+                                 "--out", str(tmp_path / "curve")])
+    out = capsys.readouterr().out
+    assert "ICPO: zero-shot 0.50; SAC from scratch reaches it after 3 episodes" in out and "expert" not in out
+    assert (tmp_path / "curve.png").exists()
