@@ -236,3 +236,17 @@ def test_from_scratch_curve_normalizes_per_goal_and_finds_the_crossing(tmp_path,
     out = capsys.readouterr().out
     assert "ICPO: zero-shot 0.50; SAC from scratch reaches it after 3 episodes" in out and "expert" not in out
     assert (tmp_path / "curve.png").exists()
+
+
+@pytest.mark.skipif(not DEFAULT_ORACLE.exists(), reason="the committed SAC oracle is not exported yet")
+def test_label_truth_script_scores_pairs_against_mujoco(monkeypatch):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import sac_label_truth
+
+    out = sac_label_truth.measure(episodes=1, every=50, seed=0)
+    assert out["pairs"] == 3
+    for key in ("sac_sign_agreement_with_true", "surrogate_sign_agreement_with_true", "true_prefers_80_percent"):
+        assert 0.0 <= out[key] <= 1.0
