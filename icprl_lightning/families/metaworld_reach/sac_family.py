@@ -8,7 +8,7 @@ oracle (``sac_weights.py``) instead of the scripted TCP expert:
   T-PRL), acting by *sampling* from their squashed Gaussians. A behavior policy's *level* (what the generic
   recipes call its mixing level p) is that share, the name of an exported checkpoint: level 0 is uniform
   actions, level 1 the final policy π;
-* the optimal action (DPT/DP²T's label, the good side of nothing) is π's mean action tanh(μ(s));
+* the optimal action (DPT/DP²T's label) is π's mean action tanh(μ(s));
 * the utility of an action is Q̂(s, a), the minimum of the final twin critic, so a Bradley–Terry label on
   a pair at one state reads A*(s, a) − A*(s, a') = Q̂(s, a) − Q̂(s, a') (the Monte Carlo baseline
   E_{a'~π} Q̂(s, a') of the paper's A* cancels in the difference).
@@ -36,7 +36,8 @@ from icprl_lightning.families.base import Oracle
 from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON, ReachOracleState
 from icprl_lightning.families.metaworld_reach.family import ReachTaskFamily
 from icprl_lightning.families.metaworld_reach.oracle import expert_actions
-from icprl_lightning.families.metaworld_reach.sac_weights import CHECKSUMS, FINAL, SACOracleWeights, _sha256
+from icprl_lightning.families.metaworld_reach.sac_weights import CHECKSUMS, FINAL, SACOracleWeights
+from icprl_lightning.io import sha256
 from icprl_lightning.metrics import mean_sem, per_task_mean
 
 DEFAULT_ORACLE = Path(__file__).parent / "sac_oracle_v1"
@@ -135,7 +136,7 @@ class ReachSACTaskFamily(ReachTaskFamily):
 
     def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
         """Each target's exported checkpoint (level = target), its share measured on ``episodes`` training episodes."""
-        levels = {name: self.weights._level(t) for name, t in targets.items()}  # KeyError names a missing one
+        levels = {name: self.weights.resolve_level(t) for name, t in targets.items()}  # KeyError names a missing one
         train = self.train_goals
         goals = train[np.random.default_rng(seed).permutation(np.resize(np.arange(len(train)), episodes))]
         sim = {k: r.mean() for k, (r, _) in self._simulate(goals, self._policies(levels), seed).items()}
@@ -170,7 +171,7 @@ class ReachSACTaskFamily(ReachTaskFamily):
 
     def config(self) -> dict[str, Any]:
         return {**super().config(), "expert": "sac",
-                "sac_oracle": {"dir": self.oracle_dir.name, "sha256": _sha256(self.oracle_dir / CHECKSUMS)}}
+                "sac_oracle": {"dir": self.oracle_dir.name, "sha256": sha256(self.oracle_dir / CHECKSUMS)}}
 
 
 __all__ = ["DEFAULT_ORACLE", "FINAL", "ReachSACTaskFamily", "SACReachOracle"]

@@ -26,7 +26,6 @@ Export (from a training run's directory; ``--targets`` are the behavior policies
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import sys
 from collections.abc import Mapping, Sequence
@@ -38,7 +37,7 @@ import torch
 from torch import nn
 
 from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, OBS_DIM
-from icprl_lightning.io import staged_directory
+from icprl_lightning.io import sha256, staged_directory
 
 MANIFEST = "oracle.json"
 CHECKSUMS = "SHA256SUMS"
@@ -82,10 +81,6 @@ class SACCritic(nn.Module):
     def forward(self, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
         x = torch.cat([obs, actions], dim=-1)
         return torch.minimum(self.qf0(x), self.qf1(x)).squeeze(-1)
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def _level_name(level: float) -> str:
@@ -137,7 +132,7 @@ def export_sac_oracle(run_dir: str | Path, out: str | Path, targets: Sequence[fl
                     "curve": [[r.step, r.mean_return, r.success] for r in records]}
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2))
         files = sorted(p.name for p in tmp.iterdir() if p.name != CHECKSUMS)
-        (tmp / CHECKSUMS).write_text("".join(f"{_sha256(tmp / f)}  {f}\n" for f in files))
+        (tmp / CHECKSUMS).write_text("".join(f"{sha256(tmp / f)}  {f}\n" for f in files))
     return out
 
 
@@ -171,7 +166,7 @@ class SACOracleWeights:
         for name, digest in listed.items():
             if "/" in name or name.startswith(".") or not (self.path / name).is_file():
                 raise ValueError(f"{self.path / CHECKSUMS}: bad or missing entry {name!r}")
-            if _sha256(self.path / name) != digest:
+            if sha256(self.path / name) != digest:
                 raise ValueError(f"{self.path / name}: checksum mismatch (expected {digest}); the oracle is "
                                  "corrupt or was edited: re-export it")
         if MANIFEST not in listed:
@@ -187,9 +182,10 @@ class SACOracleWeights:
         return tuple(sorted(self._actors))
 
     def policy_info(self, level: float) -> Mapping[str, Any]:
-        return next(e for e in self.manifest["policies"].values() if float(e["level"]) == self._level(level))
+        return next(e for e in self.manifest["policies"].values() if float(e["level"]) == self.resolve_level(level))
 
-    def _level(self, level: float) -> float:
+    def resolve_level(self, level: float) -> float:
+        """The exported level equal to ``level`` (to 1e-9); KeyError naming the levels there are."""
         for known in self._actors:
             if abs(known - float(level)) < 1e-9:
                 return known
@@ -205,13 +201,13 @@ class SACOracleWeights:
     def mean_actions(self, obs: np.ndarray, level: float = FINAL) -> np.ndarray:
         """tanh(μ(s)) [B, 4] of the policy at ``level`` (the final policy's is DPT/DP²T's label)."""
         with torch.no_grad():
-            mean, _ = self._actors[self._level(level)](self._obs(obs))
+            mean, _ = self._actors[self.resolve_level(level)](self._obs(obs))
             return torch.tanh(mean).numpy()
 
     def sample_actions(self, obs: np.ndarray, level: float, noise: np.ndarray) -> np.ndarray:
         """tanh(μ(s) + σ(s) ε) [B, 4] with the given standard-normal ``noise`` ε [B, 4]."""
         with torch.no_grad():
-            mean, log_std = self._actors[self._level(level)](self._obs(obs))
+            mean, log_std = self._actors[self.resolve_level(level)](self._obs(obs))
             eps = torch.as_tensor(np.asarray(noise, dtype=np.float32)).reshape(mean.shape)
             return torch.tanh(mean + log_std.exp() * eps).numpy()
 
@@ -224,13 +220,6 @@ class SACOracleWeights:
         with torch.no_grad():
             q = self.critic(o.expand(*a.shape[:-1], OBS_DIM), a.clamp(-1.0, 1.0))
         return q.numpy().astype(np.float64) / self.reward_scale
-
-    def advantage(self, obs: np.ndarray, actions: np.ndarray, n_samples: int = 64, seed: int = 0) -> np.ndarray:
-        """A*(s, a) ≈ Q̂(s, a) − mean over ``n_samples`` actions a' ~ π(·|s) of Q̂(s, a') [B]."""
-        obs = np.asarray(obs, dtype=np.float32)
-        noise = np.random.default_rng(seed).standard_normal((n_samples, len(obs), ACTION_DIM))
-        sampled = np.stack([self.sample_actions(obs, FINAL, e) for e in noise])  # [M, B, 4]
-        return self.q_values(obs, actions) - self.q_values(obs, sampled).mean(axis=0)
 
 
 def main(args: Sequence[str] | None = None) -> Path:
