@@ -249,3 +249,23 @@ def test_label_truth_script_scores_pairs_against_mujoco(monkeypatch):
     assert out["pairs"] == 3
     for key in ("sac_sign_agreement_with_true", "surrogate_sign_agreement_with_true", "true_prefers_80_percent"):
         assert 0.0 <= out[key] <= 1.0
+
+
+def test_action_balance_separates_a_biased_rejected_side(tmp_path):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import ipref_action_balance
+
+    rng = np.random.default_rng(0)
+    a, b = rng.uniform(-1, 1, (50, 10, 4)), rng.uniform(-1, 1, (50, 10, 4)) - 0.5  # the alternative sits lower
+    np.save(tmp_path / "actions.npy", a)
+    np.save(tmp_path / "alt_actions.npy", b)
+    np.save(tmp_path / "preferred.npy", np.ones((50, 10), dtype=np.uint8))
+    out = ipref_action_balance.balance(tmp_path)
+    np.testing.assert_allclose(out["difference_of_means"], 0.5, atol=0.1)
+    assert all(d > 0.5 for d in out["mean_abs_pair_difference"])
+    np.save(tmp_path / "actions.npy", a[..., 0])
+    with pytest.raises(ValueError, match="continuous actions"):
+        ipref_action_balance.balance(tmp_path)
