@@ -145,8 +145,13 @@ def test_sac_family_generates_the_paper_recipes(family):
     assert family.config()["expert"] == "sac" and len(family.config()["sac_oracle"]["sha256"]) == 64
     again, _ = ipref.generate(family, progress=False)
     np.testing.assert_array_equal(again["train"]["preferred"], splits["train"]["preferred"])
-    # DPT's labels are π's mean actions at the query states
-    np.testing.assert_allclose(splits["train"]["optimal_actions"][:1, :3].shape, (1, 3, 4))
+    # DP²T's labels are π's mean actions at the query states (the goal shown to π, hidden in the stored states)
+    train = splits["train"]
+    query = train["query_states"].copy()
+    query[..., 36:39] = family.train_goals[train["task_index"]][:, None, :]
+    expected = family.weights.mean_actions(query.reshape(-1, 39)).reshape(train["optimal_actions"].shape)
+    np.testing.assert_allclose(train["optimal_actions"], expected, atol=1e-6)
+    assert np.all(query[..., 36:39] != 0) and np.all(train["query_states"][..., 36:39] == 0)
     tprl = TrajectoryPairs(train_policy="pretraining", trajectories_per_task=1, val_trajectories_per_task=1,
                            eval_contexts_per_task=1, calibration_episodes=2, reference_episodes=1)
     _, info = tprl.generate(family, progress=False)

@@ -221,7 +221,7 @@ class SACOracle:
         if self.summary.get("schema_version") != SCHEMA_VERSION:
             raise ValueError(f"{summary_path} has schema {self.summary.get('schema_version')}, expected "
                              f"{SCHEMA_VERSION}: retrain the oracle")
-        self.model = self._load(self.summary["final"]["path"])
+        self.model = self.load_checkpoint(self.summary["final"]["path"])
         self._behavior: dict[str, SAC] = {}
 
     @property
@@ -237,7 +237,7 @@ class SACOracle:
         if quality not in self.calibration:
             raise KeyError(f"quality {quality!r} not calibrated; have {sorted(self.calibration)}")
         if quality not in self._behavior:
-            self._behavior[quality] = self._load(self.calibration[quality]["path"])
+            self._behavior[quality] = self.load_checkpoint(self.calibration[quality]["path"])
         return self._behavior[quality]
 
     def policy_actions(self, obs: np.ndarray, generator: torch.Generator, quality: str | None = None) -> np.ndarray:
@@ -266,7 +266,8 @@ class SACOracle:
         baseline = self.q_values(repeated, sampled).reshape(len(obs), n_samples).mean(axis=1)
         return q - baseline
 
-    def _load(self, rel: str) -> SAC:
+    def load_checkpoint(self, rel: str) -> SAC:
+        """An SB3 checkpoint of this run (path relative to the run directory); unpickles: our own runs only."""
         return SAC.load(self.path / rel, device="cpu")
 
     @staticmethod

@@ -116,7 +116,7 @@ def export_sac_oracle(run_dir: str | Path, out: str | Path, targets: Sequence[fl
                                                        "return": summary["final"]["return"],
                                                        "success": summary["final"]["success"],
                                                        "achieved": 1.0}}.items():
-            model = source._load(c["path"])
+            model = source.load_checkpoint(c["path"])
             torch.save(model.actor.state_dict(), tmp / f"actor_{name}.pt")
             policies[name] = {"level": c["target"], "file": f"actor_{name}.pt", "step": c["step"],
                               "eval_return": c["return"], "eval_success": c["success"],
