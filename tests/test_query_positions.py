@@ -78,3 +78,37 @@ def test_bf16_autocast_trains_the_same_model():
     half.backward()
     assert torch.isfinite(half) and half.item() == pytest.approx(full.item(), rel=0.05)
     assert all(p.grad is not None and torch.isfinite(p.grad).all() for p in module.parameters() if p.requires_grad)
+
+
+def test_icpo_scores_the_other_trajectory_in_shuffled_order_by_default():
+    """pair_steps: shuffled draws a fresh permutation of the other trajectory's steps per sample (the context's
+    length must not tell the time); aligned scores step t at query t."""
+    module = _module(ICPOModule)
+    draws = [module.scored_steps(3, H, torch.device("cpu")) for _ in range(5)]
+    for steps in draws:
+        assert steps.shape == (3, H) and all(sorted(row.tolist()) == list(range(H)) for row in steps)
+    assert len({tuple(s.flatten().tolist()) for s in draws}) == 5
+    assert not all(torch.equal(row, torch.arange(H)) for row in draws[0])
+    aligned = _module(ICPOModule, pair_steps="aligned").scored_steps(3, H, torch.device("cpu"))
+    assert torch.equal(aligned, torch.arange(H).expand(3, H))
+
+
+def test_icpo_shuffled_loss_is_the_aligned_loss_on_permuted_pairs():
+    """The shuffled loss equals the aligned loss on a batch whose pair_* fields were permuted by the same draw."""
+    batch = _batch()
+    module = _module(ICPOModule, beta=0.5, lam=1.0).train()
+    torch.manual_seed(11)
+    shuffled, _ = module.loss(batch)
+    torch.manual_seed(11)
+    steps = module.scored_steps(3, H, torch.device("cpu"))
+    rows = torch.arange(3)[:, None]
+    permuted = {k: (v[rows, steps] if k.startswith("pair_") else v) for k, v in batch.items()}
+    module.hparams.pair_steps = "aligned"
+    aligned, _ = module.loss(permuted)
+    assert shuffled.item() == pytest.approx(aligned.item(), rel=1e-6)
+    assert module.loss(batch)[0].item() != pytest.approx(aligned.item(), rel=1e-6)  # the order matters
+
+
+def test_pair_steps_is_checked():
+    with pytest.raises(HyperparameterError, match="pair_steps"):
+        _module(ICPOModule, pair_steps="sorted")

@@ -187,3 +187,30 @@ def test_icpo_beats_the_low_quality_behavior_policy_on_held_out_goals(tmp_path):
     metrics = {k: float(v) for k, v in cli.trainer.callback_metrics.items()}
     assert metrics["val/metaworld/low/return"] > metrics["val/metaworld/low/behavior_return"], metrics
     assert metrics["val/metaworld/low/normalized_return"] > metrics["val/metaworld/low/behavior_normalized_return"]
+
+
+def test_action_probe_scores_a_constant_action_against_the_goal(family):
+    """scripts/reach_action_probe.py: a policy that always pushes +y (towards every Reach goal from the start)."""
+    import sys
+    from pathlib import Path
+
+    from icprl_lightning.data.suites import EvalSuite
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import reach_action_probe
+
+    class PlusY:
+        def reset(self, context) -> None:
+            self.n = len(context)
+
+        def act(self, obs: torch.Tensor) -> torch.Tensor:
+            return torch.tensor([0.0, 1.0, 0.0, 0.0]).expand(len(obs), 4)
+
+    goals = family.test_goals[:2]
+    suite = EvalSuite("reach", "high", [0, 1], lambda: family.make_env(goals), np.arange(2), H)
+    out = reach_action_probe.probe_suite(PlusY(), suite, seed=0)
+    assert out["mean_action"] == [0.0, 1.0, 0.0, 0.0]
+    assert out["saturated"] == pytest.approx(1 / 3)
+    assert 0.0 < out["cos_to_goal"] <= 1.0
+    assert out["final_distance"] < out["start_distance"]
+    assert "cos_to_oracle" not in out

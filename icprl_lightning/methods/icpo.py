@@ -12,6 +12,18 @@ No optimal-action labels, no rewards: only the comparisons. Where the scored com
   the first t + 1 context comparisons (all H queries, or ``queries_per_context`` drawn ones in training).
   The comparison being scored is never in the context, so the model must infer the task from the
   context rather than copy a label it can see.
+
+  Which of the other trajectory's comparisons query t scores (``pair_steps``):
+
+  - ``"shuffled"`` (default): a random one, a fresh permutation of its H steps per sample and step, as
+    DPT draws its query states. The number of visible context comparisons then says nothing about how
+    far into an episode the scored state lies.
+  - ``"aligned"``: its step t, the project's behavior until 2 December 2026. It teaches the model to
+    read the context's length as a clock: query t always scores a state t steps into an episode, while a
+    deployed agent sees the whole context at every step. On Meta-World Reach with the SAC oracle's
+    behavior (which reaches the goal in ≈ 25 steps and then hovers past it) an aligned ICPO acts as if it
+    were late in the episode from its first step, moving away from the goal (docs/RESULTS.md,
+    "ICPO's clock"); ``scripts/reach_action_probe.py`` shows it.
 * ``"context"``: the paper's literal form — the comparisons of D itself, each scored with the whole D
   in view (T_θ(a | s_h, D) with D ∋ (s_h, a_h, a'_h, y_h)).
 """
@@ -27,6 +39,7 @@ from icprl_lightning.models.tokenizers import preferred_first
 from icprl_lightning.validation import HyperparameterError, check_choice, check_nonnegative, check_positive
 
 PAIR_SOURCES = ("other_trajectory", "context")
+PAIR_STEPS = ("shuffled", "aligned")
 
 
 class ICPOModule(InContextModule):
@@ -34,8 +47,9 @@ class ICPOModule(InContextModule):
                  lam: float = 0.5, pair_source: str = "other_trajectory", lambda_on_preferred: bool = False,
                  squared_distance: bool = False, n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
                  dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0,
-                 queries_per_context: int | None = None) -> None:
+                 queries_per_context: int | None = None, pair_steps: str = "shuffled") -> None:
         check_choice("ICPOModule", "pair_source", pair_source, PAIR_SOURCES)
+        check_choice("ICPOModule", "pair_steps", pair_steps, PAIR_STEPS)
         check_positive("ICPOModule", "beta", beta)
         check_nonnegative("ICPOModule", "lam", lam)  # λ = 0 drops the rejected term; λ > 1 is Meta-World's
         if discrete:
@@ -52,6 +66,12 @@ class ICPOModule(InContextModule):
         """pair_source other_trajectory scores another row of the same task: the data's ``pairs``."""
         return self.hparams.pair_source == "other_trajectory"
 
+    def scored_steps(self, batch_size: int, length: int, device: torch.device) -> Tensor:
+        """[B, H]: the step of the other trajectory that query position t scores, per sample (``pair_steps``)."""
+        if self.hparams.pair_steps == "aligned":
+            return torch.arange(length, device=device).expand(batch_size, length)
+        return torch.rand(batch_size, length, device=device).argsort(-1)
+
     def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
         hp = self.hparams
         context = self.context(batch)
@@ -60,7 +80,9 @@ class ICPOModule(InContextModule):
             if "pair_states" not in batch:
                 raise KeyError("ICPO with pair_source=other_trajectory needs data.init_args.pairs: true")
             positions = self.query_positions(t, context.states.device)
-            pairs = self.context(batch, prefix="pair_").map(lambda x: x[:, positions])
+            steps = self.scored_steps(context.states.shape[0], t, context.states.device)[:, positions]
+            rows = torch.arange(len(steps), device=steps.device)[:, None]
+            pairs = self.context(batch, prefix="pair_").map(lambda x: x[rows, steps])
             visible = positions + 1
         else:
             pairs = context
