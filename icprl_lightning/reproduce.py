@@ -156,9 +156,13 @@ def _reach_runs(recipe: str, scale: int) -> tuple[Run, ...]:
     overlays, ipref = REACH_RECIPES[recipe], IPREF_OVERLAYS[recipe]
     data = ("--data.init_args.setting.init_args.trajectories_per_task", str(REACH_CONTEXTS_PER_GOAL * scale))
     dpt = (*overlays, "configs/overlays/converged_contexts.yaml") if recipe == "sac" else overlays
-    return (Run("DPT", ("configs/dpt_metaworld.yaml", *dpt), data),
+    runs = (Run("DPT", ("configs/dpt_metaworld.yaml", *dpt), data),
             Run("DP2T", ("configs/dp2t_metaworld.yaml", *ipref), data),
             Run("ICPO", ("configs/icpo_metaworld.yaml", *ipref), data))
+    if scale == 1:  # ICPO as it was trained before 2 December (ICPOModule.pair_steps): the context's length a clock
+        runs += (Run("ICPO aligned pairs", ("configs/icpo_metaworld.yaml", *ipref),
+                     (*data, "--model.init_args.pair_steps", "aligned"), seeds=(0,)),)
+    return runs
 
 
 def _reach_tables() -> tuple[Table, ...]:

@@ -13,15 +13,19 @@ goal). Prints per quality:
   the same states (the SAC policy's mean action on the paper's recipe, the scripted expert's otherwise); the
   same statistics for the oracle's own action are the ``oracle_*`` keys.
 
+``--context-steps K`` deploys with each context cut to its first K comparisons: a model that reads the context's
+length as a clock (ICPO trained with ``pair_steps: aligned``) acts differently with a short context.
+
 Evaluation-only: the probe reads the goal to score actions, the policy never sees it.
 
     python scripts/reach_action_probe.py runs/.../checkpoints/last.ckpt --config configs/icpo_metaworld.yaml \\
-        --config configs/overlays/sac_oracle_ipref.yaml [--oracle] [--seed 0]
+        --config configs/overlays/sac_oracle_ipref.yaml [--oracle] [--context-steps 5] [--seed 0]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 
 import numpy as np
@@ -76,13 +80,17 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, object]]:
     parser.add_argument("--oracle", action="store_true", help="also score against the family oracle's optimal actions")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--sample", action="store_true", help="sampled actions (default: greedy)")
+    parser.add_argument("--context-steps", type=int, help="cut every context to its first K comparisons")
     ns = parser.parse_args(argv)
     dm = datamodule_from_config(*ns.config)
     dm.prepare_data()
     oracle = dm.family.oracle if ns.oracle else None
+    suites = dm.evaluation_suites()
+    if ns.context_steps is not None:
+        suites = [dataclasses.replace(s, context=s.context.map(lambda x: x[:, :ns.context_steps])) for s in suites]
     result = {suite.quality: probe_suite(load_agent(ns.checkpoint, greedy=not ns.sample, seed=ns.seed), suite,
                                          ns.seed, oracle)
-              for suite in dm.evaluation_suites()}
+              for suite in suites}
     print(json.dumps(result, indent=2))
     return result
 
