@@ -6,6 +6,11 @@ per action dimension the mean preferred action, the mean rejected action, their 
 to the per-pair difference) would teach a pull-and-push loss such as ICPO's a state-independent direction.
 
     python scripts/ipref_action_balance.py data/metaworld_reach_sac-step_preference-<hash> [--split train]
+
+``--near R`` (Meta-World Reach datasets: states[..., 0:3] is the hand, ``tasks/train_goals.npy`` the goals) prints
+the same split into the steps whose hand lies within R of the goal and the others, with each group's share: a
+behavior that reaches the goal early and hovers past it asks for different actions near and far, which a
+model must tell apart by the state (and the context), not by the time.
 """
 
 from __future__ import annotations
@@ -28,12 +33,32 @@ def balance(split_dir: Path) -> dict[str, list[float]]:
             "mean_abs_pair_difference": np.abs(preferred - rejected).mean(0).tolist()}
 
 
+def balance_by_distance(dataset: Path, split: str, radius: float) -> dict[str, dict[str, object]]:
+    """``balance`` of the steps whose hand is within ``radius`` of the goal ("near") and of the others ("far")."""
+    d = dataset / split
+    a, b = np.load(d / "actions.npy"), np.load(d / "alt_actions.npy")
+    won = np.load(d / "preferred.npy")[..., None] == 1
+    goals = np.load(dataset / "tasks" / f"{'test' if split.startswith('eval') else 'train'}_goals.npy")
+    hand = np.load(d / "states.npy")[..., :3]
+    near = np.linalg.norm(goals[np.load(d / "task_index.npy")][:, None, :] - hand, axis=-1) <= radius
+    out = {}
+    for name, rows in (("near", near), ("far", ~near)):
+        preferred, rejected = np.where(won, a, b)[rows], np.where(won, b, a)[rows]
+        out[name] = {"share": round(float(rows.mean()), 3),
+                     "mean_preferred": [round(float(v), 3) for v in preferred.mean(0)],
+                     "mean_rejected": [round(float(v), 3) for v in rejected.mean(0)]}
+    return out
+
+
 def main(args: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("dataset", type=Path)
     parser.add_argument("--split", default="train")
+    parser.add_argument("--near", type=float, help="Reach: also split the steps by hand-to-goal distance ≤ R")
     ns = parser.parse_args(args)
-    out = {k: [round(v, 3) for v in values] for k, values in balance(ns.dataset / ns.split).items()}
+    out: dict[str, object] = {k: [round(v, 3) for v in values] for k, values in balance(ns.dataset / ns.split).items()}
+    if ns.near is not None:
+        out["by_distance"] = balance_by_distance(ns.dataset, ns.split, ns.near)
     print(json.dumps(out, indent=2))
 
 

@@ -274,3 +274,29 @@ def test_action_balance_separates_a_biased_rejected_side(tmp_path):
     np.save(tmp_path / "actions.npy", a[..., 0])
     with pytest.raises(ValueError, match="continuous actions"):
         ipref_action_balance.balance(tmp_path)
+
+
+def test_action_balance_by_distance_splits_near_and_far_steps(tmp_path):
+    """--near R: steps whose hand (states[..., :3]) lies within R of the task's goal, against the others."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    import ipref_action_balance
+
+    split = tmp_path / "train"
+    split.mkdir()
+    (tmp_path / "tasks").mkdir()
+    np.save(tmp_path / "tasks" / "train_goals.npy", np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]))
+    states = np.zeros((2, 4, 39), dtype=np.float32)
+    states[:, 2:, :3] = 5.0  # the last two steps of each row are far from both goals
+    states[1, :2, :3] = 1.0  # row 1 (task 1) starts on its goal
+    np.save(split / "states.npy", states)
+    np.save(split / "task_index.npy", np.array([0, 1]))
+    np.save(split / "actions.npy", np.where(states[..., :1] == 5.0, 1.0, 0.5) * np.ones((2, 4, 4)))
+    np.save(split / "alt_actions.npy", -np.ones((2, 4, 4)))
+    np.save(split / "preferred.npy", np.ones((2, 4), dtype=np.uint8))
+    out = ipref_action_balance.balance_by_distance(tmp_path, "train", radius=0.1)
+    assert out["near"]["share"] == 0.5 and out["far"]["share"] == 0.5
+    assert out["near"]["mean_preferred"] == [0.5] * 4 and out["far"]["mean_preferred"] == [1.0] * 4
+    assert out["near"]["mean_rejected"] == [-1.0] * 4
