@@ -17,7 +17,8 @@ No optimal-action labels, no rewards: only the comparisons. Where the scored com
 
   - ``"shuffled"`` (default): a random one, a fresh permutation of its H steps per sample and step, as
     DPT draws its query states. The number of visible context comparisons then says nothing about how
-    far into an episode the scored state lies.
+    far into an episode the scored state lies. Validation draws its permutation too (from the global
+    seed), so ``val/loss`` carries that draw's noise.
   - ``"aligned"``: its step t, the project's behavior until 2 December 2026. It teaches the model to
     read the context's length as a clock: query t always scores a state t steps into an episode, while a
     deployed agent sees the whole context at every step. On Meta-World Reach with the SAC oracle's
