@@ -141,10 +141,12 @@ def _tprl_runs() -> tuple[Run, ...]:
             Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
 
 
-# Meta-World Reach I-PRL (issue 13): the scripted recipe (the configs as they are) and the paper's (the committed
-# SAC oracle), at multiples of the configs' 20 contexts per training goal, the configs' 50 epochs each
-REACH_RECIPES = {"scripted": (), "sac": ("configs/overlays/sac_oracle.yaml",)}
-IPREF_OVERLAYS = {"scripted": (), "sac": ("configs/overlays/sac_oracle_ipref.yaml",)}
+# Meta-World Reach I-PRL (issue 13): the paper's recipe (the configs as they are: the committed SAC oracle) and
+# the scripted-expert one (its overlays), at multiples of the configs' 20 contexts per training goal, the
+# configs' 50 epochs each. Per recipe: (DPT's overlays, the I-PRL configs' overlays).
+REACH_RECIPES = {"scripted": (("configs/overlays/scripted_expert_dpt.yaml",),
+                              ("configs/overlays/scripted_expert_ipref.yaml",)),
+                 "sac": ((), ())}
 RECIPE_TITLES = {"scripted": "scripted-expert recipe", "sac": "the paper's recipe (SAC oracle)"}
 REACH_SCALES = (1, 2, 4, 8)
 REACH_CONTEXTS_PER_GOAL = 20
@@ -153,9 +155,8 @@ REACH_CONTEXTS_PER_GOAL = 20
 def _reach_runs(recipe: str, scale: int) -> tuple[Run, ...]:
     """DPT, DP²T and ICPO on one Reach recipe at ``scale`` × 20 contexts per goal (DPT's training contexts from
     the converged policy on the SAC recipe, as the paper's)."""
-    overlays, ipref = REACH_RECIPES[recipe], IPREF_OVERLAYS[recipe]
+    dpt, ipref = REACH_RECIPES[recipe]
     data = ("--data.init_args.setting.init_args.trajectories_per_task", str(REACH_CONTEXTS_PER_GOAL * scale))
-    dpt = (*overlays, "configs/overlays/converged_contexts.yaml") if recipe == "sac" else overlays
     runs = (Run("DPT", ("configs/dpt_metaworld.yaml", *dpt), data),
             Run("DP2T", ("configs/dp2t_metaworld.yaml", *ipref), data),
             Run("ICPO", ("configs/icpo_metaworld.yaml", *ipref), data))

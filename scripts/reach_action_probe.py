@@ -19,7 +19,7 @@ length as a clock (ICPO trained with ``pair_steps: aligned``) acts differently w
 Evaluation-only: the probe reads the goal to score actions, the policy never sees it.
 
     python scripts/reach_action_probe.py runs/.../checkpoints/last.ckpt --config configs/icpo_metaworld.yaml \\
-        --config configs/overlays/sac_oracle_ipref.yaml [--oracle] [--context-steps 5] [--seed 0]
+        [--oracle] [--context-steps 5] [--seed 0]
 """
 
 from __future__ import annotations

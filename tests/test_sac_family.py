@@ -170,25 +170,36 @@ def test_the_committed_oracle_loads_and_verifies():
     assert manifest["training"]["command"].startswith("python -m icprl_lightning.families.metaworld_reach.sac ")
 
 
-def test_overlays_put_every_reach_config_on_the_sac_recipe(exported, tmp_path):
+def test_reach_ipref_configs_are_the_sac_recipe_and_overlays_switch_recipes(exported, tmp_path):
+    """icpo/dp2t/dpt_metaworld.yaml are the paper's recipe; scripted_expert_*.yaml put them back on the scripted
+    expert; sac_oracle.yaml puts the T-PRL configs on the SAC oracle."""
     from factories import REPO
 
     from icprl_lightning.data.config import datamodule_from_config
+    from icprl_lightning.families.metaworld_reach import ReachTaskFamily
 
     local = tmp_path / "local.yaml"  # the tiny oracle instead of the committed one
     local.write_text(f"data:\n  init_args:\n    family:\n      init_args:\n        oracle_dir: {exported}\n")
-    sac = str(REPO / "configs/overlays/sac_oracle.yaml")
-    for config in ("icpo_metaworld", "dp2t_metaworld", "dpt_metaworld", "dp2t_metaworld_tprl", "icrg_metaworld"):
-        dm = datamodule_from_config(str(REPO / f"configs/{config}.yaml"), sac, str(local), root_dir=str(tmp_path))
-        assert isinstance(dm.family, ReachSACTaskFamily) and dm.family.oracle_dir == exported, config
-    for config in ("icpo_metaworld", "dp2t_metaworld"):
-        dm = datamodule_from_config(str(REPO / f"configs/{config}.yaml"),
-                                    str(REPO / "configs/overlays/sac_oracle_ipref.yaml"), str(local),
-                                    root_dir=str(tmp_path))
-        assert isinstance(dm.family, ReachSACTaskFamily) and dm.setting.bt_temperature == 0.01, config
-    dpt = datamodule_from_config(str(REPO / "configs/dpt_metaworld.yaml"), sac, str(local),
-                                 str(REPO / "configs/overlays/converged_contexts.yaml"), root_dir=str(tmp_path))
+
+    def config(name: str, *overlays: str):
+        return [str(REPO / f"configs/{name}.yaml"), *(str(REPO / f"configs/overlays/{o}.yaml") for o in overlays)]
+
+    for name in ("icpo_metaworld", "dp2t_metaworld"):
+        dm = datamodule_from_config(*config(name), str(local), root_dir=str(tmp_path))
+        assert isinstance(dm.family, ReachSACTaskFamily) and dm.family.oracle_dir == exported, name
+        assert dm.setting.bt_temperature == 0.01, name
+        dm = datamodule_from_config(*config(name, "scripted_expert_ipref"), root_dir=str(tmp_path))
+        assert type(dm.family) is ReachTaskFamily and dm.setting.bt_temperature == 0.02, name
+    dpt = datamodule_from_config(*config("dpt_metaworld"), str(local), root_dir=str(tmp_path))
+    assert isinstance(dpt.family, ReachSACTaskFamily)
     assert (dpt.setting.train_policy, dpt.setting.pretraining_target) == ("pretraining", 1.0)
+    dpt = datamodule_from_config(*config("dpt_metaworld", "scripted_expert_dpt"), root_dir=str(tmp_path))
+    assert type(dpt.family) is ReachTaskFamily
+    assert (dpt.setting.train_policy, dpt.setting.pretraining_target) == ("cycle", None)
+    for name in ("dp2t_metaworld_tprl", "icrg_metaworld", "reward_gen_metaworld", "dit_metaworld"):
+        assert type(datamodule_from_config(*config(name), root_dir=str(tmp_path)).family) is ReachTaskFamily, name
+        dm = datamodule_from_config(*config(name, "sac_oracle"), str(local), root_dir=str(tmp_path))
+        assert isinstance(dm.family, ReachSACTaskFamily) and dm.family.oracle_dir == exported, name
 
 
 def test_scale_curves_tabulate_and_plot_what_is_there(tmp_path):
