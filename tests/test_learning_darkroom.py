@@ -16,8 +16,9 @@ def test_icpo_beats_the_behavior_policy_on_held_out_goals(tmp_path):
     dm = darkroom_data(root_dir=str(tmp_path), trajectories_per_task=12, val_trajectories_per_task=2,
                             eval_contexts_per_task=3, calibration_episodes=10, pairs=True, batch_size=32,
                             progress=False)
+    # β and λ of configs/icpo_darkroom.yaml (the β × λ sweep's pick)
     model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100, n_layer=2, n_embd=64, n_head=4,
-                       lr=1e-3)
+                       lr=1e-3, beta=0.1, lam=1.0)
     rollout = InContextRolloutCallback(seed=0, diagnostics=["flipped_labels", "random_labels", "other_task"])
     # 960 contexts / 32 = 30 steps an epoch: about 400 optimizer steps, validated (and rolled out) once at the end
     trainer = L.Trainer(max_epochs=13, check_val_every_n_epoch=13, limit_val_batches=1, logger=False,
