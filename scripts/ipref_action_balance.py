@@ -22,12 +22,17 @@ from pathlib import Path
 import numpy as np
 
 
-def balance(split_dir: Path) -> dict[str, list[float]]:
+def preferred_and_rejected(split_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The preferred and the rejected action of every comparison, each [N, H, A]."""
     a, b = np.load(split_dir / "actions.npy"), np.load(split_dir / "alt_actions.npy")
     if a.ndim != 3:
         raise ValueError(f"{split_dir}: continuous actions [N, H, A] expected, got shape {list(a.shape)}")
     won = np.load(split_dir / "preferred.npy")[..., None] == 1
-    preferred, rejected = np.where(won, a, b).reshape(-1, a.shape[-1]), np.where(won, b, a).reshape(-1, a.shape[-1])
+    return np.where(won, a, b), np.where(won, b, a)
+
+
+def balance(split_dir: Path) -> dict[str, list[float]]:
+    preferred, rejected = (x.reshape(-1, x.shape[-1]) for x in preferred_and_rejected(split_dir))
     return {"mean_preferred": preferred.mean(0).tolist(), "mean_rejected": rejected.mean(0).tolist(),
             "difference_of_means": (preferred - rejected).mean(0).tolist(),
             "mean_abs_pair_difference": np.abs(preferred - rejected).mean(0).tolist()}
@@ -36,17 +41,15 @@ def balance(split_dir: Path) -> dict[str, list[float]]:
 def balance_by_distance(dataset: Path, split: str, radius: float) -> dict[str, dict[str, object]]:
     """``balance`` of the steps whose hand is within ``radius`` of the goal ("near") and of the others ("far")."""
     d = dataset / split
-    a, b = np.load(d / "actions.npy"), np.load(d / "alt_actions.npy")
-    won = np.load(d / "preferred.npy")[..., None] == 1
+    preferred, rejected = preferred_and_rejected(d)
     goals = np.load(dataset / "tasks" / f"{'test' if split.startswith('eval') else 'train'}_goals.npy")
     hand = np.load(d / "states.npy")[..., :3]
     near = np.linalg.norm(goals[np.load(d / "task_index.npy")][:, None, :] - hand, axis=-1) <= radius
     out = {}
     for name, rows in (("near", near), ("far", ~near)):
-        preferred, rejected = np.where(won, a, b)[rows], np.where(won, b, a)[rows]
         out[name] = {"share": round(float(rows.mean()), 3),
-                     "mean_preferred": [round(float(v), 3) for v in preferred.mean(0)],
-                     "mean_rejected": [round(float(v), 3) for v in rejected.mean(0)]}
+                     "mean_preferred": [round(float(v), 3) for v in preferred[rows].mean(0)],
+                     "mean_rejected": [round(float(v), 3) for v in rejected[rows].mean(0)]}
     return out
 
 
