@@ -62,3 +62,42 @@ def label_agreement(utility_first: np.ndarray, utility_second: np.ndarray, prefe
         return float("nan")
     agree = (diff[strict] > 0) == (np.asarray(preferred)[strict] == 1)
     return float(agree.mean())
+
+
+class AgreementTally:
+    """``label_agreement``, the tie fraction, the median utility gap and ``expected_agreement`` of many pairs,
+    added a block at a time (the I-PRL generator adds one step of every trajectory), so that the
+    utilities themselves are never stored: at DarkRoom's paper scale they were 128 MB written once and
+    read three times, for four numbers. ``summary()`` equals the whole-array functions on the same pairs
+    (up to the order of floating-point sums).
+    """
+
+    def __init__(self, temperatures: tuple[float, ...] = BT_TEMPERATURE_LADDER) -> None:
+        self.temperatures = temperatures
+        self.pairs = self.strict = self.agree = 0
+        self.tanh_sums = np.zeros(len(temperatures))
+        self.gaps: list[np.ndarray] = []  # the nonzero |ΔU| of each block, for the median
+
+    def add(self, utility_first: np.ndarray, utility_second: np.ndarray, preferred: np.ndarray) -> None:
+        diff = np.asarray(utility_first, dtype=np.float64) - np.asarray(utility_second, dtype=np.float64)
+        strict = diff != 0
+        gap = np.abs(diff[strict])
+        self.pairs += diff.size
+        self.strict += gap.size
+        self.agree += int(np.count_nonzero(((diff > 0) == (np.asarray(preferred) == 1)) & strict))
+        for i, t in enumerate(self.temperatures):
+            self.tanh_sums[i] += np.tanh(gap / (2.0 * t)).sum()
+        self.gaps.append(gap)
+
+    def summary(self) -> dict:
+        """label_agreement, tie_fraction, median_utility_gap (0 when all tie), expected_agreement_by_bt_temperature."""
+        if not self.strict:
+            nan = float("nan")
+            return {"label_agreement": nan, "tie_fraction": 1.0 if self.pairs else nan, "median_utility_gap": 0.0,
+                    "expected_agreement_by_bt_temperature": {str(t): nan for t in self.temperatures}}
+        mean_tanh = self.tanh_sums / self.strict
+        return {"label_agreement": self.agree / self.strict,
+                "tie_fraction": 1.0 - self.strict / self.pairs,
+                "median_utility_gap": float(np.median(np.concatenate(self.gaps), overwrite_input=True)),
+                "expected_agreement_by_bt_temperature": {str(t): float(0.5 * (1.0 + m))
+                                                         for t, m in zip(self.temperatures, mean_tanh, strict=True)}}

@@ -37,7 +37,7 @@ from icprl_lightning.annotators import (
 from icprl_lightning.annotators.labels import check_labels, count_labels, resolve_labels
 from icprl_lightning.cli import run_cli
 from icprl_lightning.data.settings import RewardTrajectories, StepPreferences, TrajectoryPairs
-from icprl_lightning.preferences import label_agreement, sample_preferences
+from icprl_lightning.preferences import AgreementTally, expected_agreement, label_agreement, sample_preferences
 from icprl_lightning.validation import HyperparameterError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -413,3 +413,28 @@ def test_a_bandit_teacher_relabels_pretraining_duels_only(tmp_path):
     # a deterministic teacher that errs 30% of the time agrees with the reward order on ≈ 70% of duels
     assert 0.6 < info["label_agreement"]["train"] < 0.8
     assert info["label_agreement"]["eval_uniform"] == a.manifest["info"]["label_agreement"]["eval_uniform"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 60), st.integers(1, 5), st.integers(0, 2**32 - 1))
+def test_agreement_tally_equals_the_whole_array_statistics(n, blocks, seed):
+    """The generator's step-by-step tally (AgreementTally) gives what the whole-array functions give on the
+    same pairs: ties (integer utilities), all-tie inputs and any split into blocks included."""
+    rng = np.random.default_rng(seed)
+    first, second = rng.integers(-2, 3, size=(2, n)).astype(np.float64)
+    if rng.random() < 0.5:  # continuous utilities too
+        first, second = first + rng.normal(size=n), second + rng.normal(size=n) * (rng.random(n) < 0.5)
+    y = rng.integers(0, 2, size=n).astype(np.uint8)
+    tally = AgreementTally()
+    for part in np.array_split(np.arange(n), blocks):
+        tally.add(first[part], second[part], y[part])
+    got = tally.summary()
+    gap = np.abs(first - second)
+    want = {"label_agreement": label_agreement(first, second, y), "tie_fraction": float(np.mean(gap == 0)),
+            "median_utility_gap": float(np.median(gap[gap != 0])) if np.any(gap != 0) else 0.0,
+            "expected_agreement_by_bt_temperature": expected_agreement(first, second)}
+    assert got.keys() == want.keys()
+    for key in ("label_agreement", "tie_fraction", "median_utility_gap"):
+        assert got[key] == pytest.approx(want[key], rel=1e-12, nan_ok=True), key
+    for t, value in want["expected_agreement_by_bt_temperature"].items():
+        assert got["expected_agreement_by_bt_temperature"][t] == pytest.approx(value, rel=1e-12, nan_ok=True), t

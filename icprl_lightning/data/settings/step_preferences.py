@@ -47,7 +47,7 @@ from icprl_lightning.data.settings.base import (
     steps,
 )
 from icprl_lightning.families.base import TaskFamily
-from icprl_lightning.preferences import expected_agreement, label_agreement
+from icprl_lightning.preferences import AgreementTally
 from icprl_lightning.validation import check_choice
 
 FOLLOW = ("preferred", "rejected", "behavior", "first")
@@ -94,7 +94,7 @@ class StepPreferences(MDPSetting):
         pair = np.empty((2, horizon, n, *act_shape), dtype=family.action_dtype)
         optimal = np.empty((horizon, n, *act_shape), dtype=family.action_dtype)
         preferred = np.empty((horizon, n), dtype=np.uint8)
-        utility = np.empty((2, horizon, n))
+        tally = AgreementTally()  # label statistics, step by step (the utilities are not kept)
         answers = {"skip_count": 0, "equal_count": 0}
         second_p = mixing[quality]
         first_p = None if self.first_policy == "uniform" else mixing[self.policy_names().index(self.first_policy)]
@@ -114,14 +114,10 @@ class StepPreferences(MDPSetting):
                     y = stored_labels(self.annotator.label_steps(queries, rng), m, type(self.annotator).__name__,
                                       rng, answers)
                     states[h, rows], pair[:, h, rows], optimal[h, rows] = obs, both, oracle.optimal_actions(state)
-                    preferred[h, rows], utility[:, h, rows] = y, u
+                    preferred[h, rows] = y
+                    tally.add(u[0], u[1], y)
                     roll.step(self._next_action(y, both, first, second))
-        # the statistics are means over all pairs: the same in either layout
-        gap = np.abs(utility[0] - utility[1])
-        stats = {"label_agreement": label_agreement(utility[0], utility[1], preferred),
-                 "tie_fraction": float(np.mean(utility[0] == utility[1])),
-                 "median_utility_gap": float(np.median(gap[gap != 0])) if np.any(gap != 0) else 0.0,
-                 "expected_agreement_by_bt_temperature": expected_agreement(utility[0], utility[1]), **answers}
+        stats = {**tally.summary(), **answers}
         states, optimal = _row_major(states), _row_major(optimal)
         arrays = {"states": states, "actions": _row_major(pair[0]), "alt_actions": _row_major(pair[1]),
                   "preferred": _row_major(preferred)}
