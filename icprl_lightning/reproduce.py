@@ -141,6 +141,22 @@ def _tprl_runs() -> tuple[Run, ...]:
             Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
 
 
+# Meta-World Reach T-PRL on the paper's recipe (issue 17, points 3–4): both trajectories of a pair from the SAC
+# oracle's 50%-return checkpoint (configs/overlays/sac_oracle.yaml), not the 86%-uniform scripted mixture; 4× the
+# configs' 10 pairs per goal, every epoch 4× the steps. ICRG's stages beside their oracle (DIT on true rewards), DP²T.
+SAC_ORACLE = "configs/overlays/sac_oracle.yaml"
+REACH_TPRL_PAIRS = ("--data.init_args.setting.init_args.trajectories_per_task", "40")
+
+
+def _reach_tprl_runs() -> tuple[Run, ...]:
+    stage1 = ("--model.init_args.reward_gen_checkpoint", ("RewardGen",))
+    return (Run("RewardGen", ("configs/reward_gen_metaworld.yaml", SAC_ORACLE), REACH_TPRL_PAIRS, evaluated=False,
+                checkpoint="best"),
+            Run("ICRG", ("configs/icrg_metaworld.yaml", SAC_ORACLE), REACH_TPRL_PAIRS, needs=(stage1,)),
+            Run("DIT true rewards", ("configs/dit_metaworld.yaml", SAC_ORACLE), REACH_TPRL_PAIRS),
+            Run("DP2T", ("configs/dp2t_metaworld_tprl.yaml", SAC_ORACLE), REACH_TPRL_PAIRS))
+
+
 # Meta-World Reach I-PRL (issue 13): the paper's recipe (the configs as they are: the committed SAC oracle) and
 # the scripted-expert one (its overlays), at multiples of the configs' 20 contexts per training goal, the
 # configs' 50 epochs each. Per recipe: (DPT's overlays, the I-PRL configs' overlays).
@@ -288,6 +304,11 @@ TABLES = {t.name: t for t in (
                ("--model.init_args.pair_source", "context_causal"), evaluated=False, checkpoint="best")),
           budget="≈ 5–20 min per fit on 1 core; measured by scripts/reward_gen_quality.py, not deployed"),
     *_reach_tables(),
+    Table("metaworld_tprl_sac", "Meta-World Reach T-PRL, the paper's recipe (pairs from SAC's 50%-return "
+          "checkpoint, 40 per goal): ICRG, DIT on true rewards, DP²T", _reach_tprl_runs(),
+          evaluations=(Evaluation("", ("--greedy",)),),  # Gaussian means: sampling would repeat the greedy pass
+          baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
+          budget="≈ 10–25 min per fit on 1 core (data generation included); ICRG after its RewardGen"),
     Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
           evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS,
           eval_seeds=(0,), budget="≈ 2–4 min per fit on 1 core"),
