@@ -4,6 +4,11 @@ against contexts per training goal, one panel per recipe and context quality, fr
 
     python scripts/reach_scale_curves.py                      # every table present
     python scripts/reach_scale_curves.py --out docs/results/metaworld_scale
+    python scripts/reach_scale_curves.py --rows sac:1=docs/results/metaworld_sac_x1_icpo.json:ICPO
+
+``--rows RECIPE:K=FILE:METHOD[,METHOD]`` takes those methods' rows and diagnostics from another evaluation's
+JSON (``icprl evaluate --out``) instead of the table's, for a method refitted after its table was made; the
+Markdown names every replaced row and its file.
 
 Writes ``<out>.png`` and ``<out>.md`` (the numbers plotted: mean ± sem over training seeds, and the
 diagnostics of ICPO and DP²T: flipped and random labels, another goal's context). A scale whose table is
@@ -33,14 +38,37 @@ def load(results_dir: Path) -> dict[str, dict[int, dict]]:
     return out
 
 
+def replace_rows(tables: dict[str, dict[int, dict]], spec: str) -> str:
+    """Apply one ``--rows RECIPE:K=FILE:METHOD[,METHOD]``; returns the note the Markdown prints."""
+    try:
+        where, source = spec.split("=", 1)
+        recipe, k = where.split(":")
+        path, methods = source.rsplit(":", 1)
+        k = int(k)
+    except ValueError:
+        raise SystemExit(f"--rows wants RECIPE:K=FILE:METHOD[,METHOD], got {spec!r}") from None
+    if k not in tables.get(recipe, {}):
+        raise SystemExit(f"--rows {spec!r}: there is no metaworld_{recipe}_x{k}.json to replace rows in")
+    payload, other = tables[recipe][k], json.loads(Path(path).read_text())
+    for method in methods.split(","):
+        if method not in other["results"]:
+            raise SystemExit(f"--rows {spec!r}: {path} has no {method!r} row (it has {sorted(other['results'])})")
+        payload["results"][method] = other["results"][method]
+        if method in other.get("diagnostics", {}):
+            payload.setdefault("diagnostics", {})[method] = other["diagnostics"][method]
+    return f"{RECIPE_TITLES[recipe]}, {REACH_CONTEXTS_PER_GOAL * k} contexts per goal: {methods} from {path}"
+
+
 def _cell(row: dict, key: str = "normalized_return") -> str:
     sem = row.get(f"{key}_sem")
     return f"{row[key]:.2f}" + ("" if sem is None else f" ± {sem:.2f}")
 
 
-def markdown(tables: dict[str, dict[int, dict]]) -> str:
+def markdown(tables: dict[str, dict[int, dict]], notes: tuple[str, ...] = ()) -> str:
     lines = ["Normalized held-out return (greedy; 0 = uniform actions, 1 = the scripted expert), mean ± sem over "
              "training seeds, by contexts per training goal.", ""]
+    if notes:
+        lines += ["Rows replaced by a later evaluation (`--rows`):", "", *(f"- {n}" for n in notes), ""]
     for recipe, by_scale in tables.items():
         lines += [f"### {RECIPE_TITLES[recipe]}", "",
                   "| method | contexts / goal | seeds | " + " | ".join(QUALITIES) + " |",
@@ -110,13 +138,16 @@ def main(args: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--results", type=Path, default=Path("docs/results"))
     parser.add_argument("--out", type=Path, default=Path("docs/results/metaworld_scale"))
+    parser.add_argument("--rows", action="append", default=[], metavar="RECIPE:K=FILE:METHOD[,METHOD]",
+                        help="take these methods' rows from another evaluation's JSON (repeatable)")
     ns = parser.parse_args(args)
     tables = load(ns.results)
     if not tables:
         raise SystemExit(f"no metaworld_<recipe>_x<k>.json in {ns.results}: "
                          "run `icprl reproduce metaworld_sac_x1` first")
+    notes = tuple(replace_rows(tables, spec) for spec in ns.rows)
     ns.out.parent.mkdir(parents=True, exist_ok=True)
-    ns.out.with_suffix(".md").write_text(markdown(tables))
+    ns.out.with_suffix(".md").write_text(markdown(tables, notes))
     figure(tables, ns.out)
     print(ns.out.with_suffix(".md").read_text())
 

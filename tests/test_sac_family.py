@@ -226,6 +226,18 @@ def test_scale_curves_tabulate_and_plot_what_is_there(tmp_path):
     assert "Not run: 80, 160 contexts per goal." in md and "Not run: 40, 80, 160" in md
     assert (tmp_path / "scale.png").stat().st_size > 0
 
+    refit = {"results": {"ICPO": {q: row(0.75) for q in ("low", "medium", "high")}},
+             "diagnostics": {"ICPO": {c: {"medium": row(0.2)} for c in ("flipped_labels", "random_labels")}}}
+    (tmp_path / "refit.json").write_text(json.dumps(refit))
+    reach_scale_curves.main(["--results", str(tmp_path), "--out", str(tmp_path / "scale"),
+                             "--rows", f"sac:1={tmp_path / 'refit.json'}:ICPO"])
+    md = (tmp_path / "scale.md").read_text()
+    assert "| ICPO | 20 | 3 | 0.75 ± 0.01 |" in md and "| ICPO | 40 | 3 | 0.60 ± 0.01 |" in md
+    assert "- ICPO, 20 contexts / goal: 0.75 / 0.20 / 0.20 / –" in md and "ICPO from " in md
+    for bad in (f"sac:4={tmp_path / 'refit.json'}:ICPO", f"sac:1={tmp_path / 'refit.json'}:DPT", "sac1=x"):
+        with pytest.raises(SystemExit, match="--rows"):
+            reach_scale_curves.main(["--results", str(tmp_path), "--out", str(tmp_path / "scale"), "--rows", bad])
+
 
 def test_from_scratch_curve_normalizes_per_goal_and_finds_the_crossing(tmp_path, capsys):
     import sys
