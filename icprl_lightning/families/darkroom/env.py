@@ -22,8 +22,8 @@ import numpy as np
 if TYPE_CHECKING:
     from icprl_lightning.families.darkroom.family import DarkRoomFamily
 
-# up, down, left, right, no-op. int8: ``transition`` gathers one move per candidate action, and an int64
-# gather of [2, N, 2] moves (2.5 MB at N = 80,000) cost 10x the int8 one; s + move is still int64
+# up, down, left, right, no-op. int8: ``transition`` gathers one move per candidate action, [2, N, 2] moves
+# per generation step (2.5 MB as int64 at N = 80,000, 320 kB as int8); s + move is still int64
 MOVES = np.array([[0, 1], [0, -1], [-1, 0], [1, 0], [0, 0]], dtype=np.int8)
 NOOP = 4
 N_ACTIONS = len(MOVES)
