@@ -166,7 +166,7 @@ def test_a_later_stage_starts_as_soon_as_its_own_needs_are_done(tmp_path, monkey
     """With 2 jobs, C (which needs the quick B) trains while the slow A, which it does not need, still runs."""
     import threading
 
-    import icprl_lightning.reproduce as rep
+    import icprl_lightning.reproduce.runner as rep
 
     events, a_may_finish = [], threading.Event()
 

@@ -1,0 +1,93 @@
+"""The figures of ``icprl reproduce`` beyond ``icprl evaluate``'s own: held-out return during training for
+every table, and the table-specific ones named by ``Table.figure`` (``FIGURES``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from icprl_lightning.families.base import QUALITIES
+from icprl_lightning.reproduce.tables import BETAS, LAMBDAS, MISTAKE_RATES, Table
+
+
+def lambda_beta_figure(table: Table, out_dir: Path) -> None:
+    """Return vs λ, one line per β, greedy (solid) and sampled (dashed), one panel per context quality."""
+    from matplotlib.figure import Figure
+
+    payloads = {e.suffix: json.loads((out_dir / f"{table.name}{e.suffix}.json").read_text()) for e in table.evaluations}
+    qualities = ("low", "medium", "high")
+    fig = Figure(figsize=(12, 3.4), layout="tight")
+    axes = fig.subplots(1, len(qualities), sharey=True)
+    for ax, quality in zip(axes, qualities, strict=True):
+        for i, beta in enumerate(BETAS):
+            for suffix, style in (("", "-"), ("_sampled", "--")):
+                rows = [payloads[suffix]["results"][f"b{beta}_l{lam}"][quality] for lam in LAMBDAS]
+                ax.errorbar([float(lam) for lam in LAMBDAS], [r["return"] for r in rows],
+                            yerr=[r.get("return_sem", 0.0) for r in rows], color=f"C{i}", linestyle=style,
+                            marker=".", capsize=2,
+                            label=f"β = {beta}, {'greedy' if suffix == '' else 'sampled'}")
+        ax.set_title(f"{quality} contexts", fontsize=9)
+        ax.set_xlabel("λ")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("held-out return")
+    axes[-1].legend(fontsize=6, bbox_to_anchor=(1.02, 1), loc="upper left")
+    fig.suptitle(f"{table.title} (corners: 3 training seeds, mean ± sem over seeds; others: 1 seed, "
+                 "± sem over held-out goals)", fontsize=9)
+    fig.savefig(out_dir / f"{table.name}.png", dpi=120)
+
+
+def teacher_noise_figure(table: Table, out_dir: Path) -> None:
+    """The held-out metric vs the teacher's mistake rate, one line per context source (bandits: weak regret,
+    DTS dashed) or per context quality (DarkRoom: greedy return, behavior dashed)."""
+    from matplotlib.figure import Figure
+
+    results = json.loads((out_dir / f"{table.name}.json").read_text())["results"]
+    sources = list(results[f"ICPO eps{MISTAKE_RATES[0]}"])
+    metric = "weak_regret" if "weak_regret" in results[f"ICPO eps{MISTAKE_RATES[0]}"][sources[0]] else "return"
+    reference = "dts" if metric == "weak_regret" else "behavior"
+    fig = Figure(figsize=(5.5, 3.6), layout="tight")
+    ax = fig.subplots()
+    eps = [float(e) for e in MISTAKE_RATES]
+    for i, source in enumerate(sources):
+        rows = [results[f"ICPO eps{e}"][source] for e in MISTAKE_RATES]
+        ax.errorbar(eps, [r[metric] for r in rows], yerr=[r.get(f"{metric}_sem", 0.0) for r in rows],
+                    color=f"C{i}", marker=".", capsize=2, label=f"ICPO, {source} contexts")
+        if reference in results and source in results[reference]:
+            ax.axhline(results[reference][source][metric], color=f"C{i}", linestyle="--", linewidth=0.8,
+                       label=f"{reference}, {source} contexts")
+    ax.set_xlabel("teacher's mistake rate ε (pretraining labels)")
+    ax.set_ylabel("weak regret after the whole context" if metric == "weak_regret" else "held-out return (greedy)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6)
+    ax.set_title("ICPO pretrained on a scripted teacher's labels (3 training seeds, mean ± sem)", fontsize=8)
+    fig.savefig(out_dir / f"{table.name}_vs_noise.png", dpi=120)
+
+
+def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -> None:
+    """Held-out return vs optimizer steps, one panel per quality, one line per run (each training seed thin)."""
+    from matplotlib.figure import Figure
+
+    found = {k for per in curves.values() for c in per.values() for p in c for k in p if k != "step"}
+    qualities = [q for q in QUALITIES if q in found] + sorted(found - set(QUALITIES))
+    if not qualities:
+        return
+    fig = Figure(figsize=(3.6 * len(qualities) + 1.5, 3.2), layout="tight")
+    axes = fig.subplots(1, len(qualities), sharey=True, squeeze=False)[0]
+    for ax, quality in zip(axes, qualities, strict=True):
+        for i, (name, per_seed) in enumerate(curves.items()):
+            color = f"C{i}"
+            for j, curve in enumerate(per_seed.values()):
+                points = [(p["step"], p[quality]) for p in curve if quality in p]
+                if points:
+                    ax.plot(*zip(*points, strict=True), color=color, alpha=0.8, marker=".",
+                            label=name if j == 0 else None)
+        ax.set_title(f"{quality} contexts", fontsize=9)
+        ax.set_xlabel("optimizer steps")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("held-out return (rollout callback)")
+    axes[-1].legend(fontsize=7)
+    fig.suptitle(f"{table.title}: return during training, one line per training seed", fontsize=9)
+    fig.savefig(path, dpi=120)
+
+
+FIGURES = {"lambda_beta": lambda_beta_figure, "teacher_noise": teacher_noise_figure}

@@ -1,0 +1,248 @@
+"""``icprl reproduce TABLE``: regenerate a results table of ``docs/RESULTS.md`` and its figure from scratch.
+
+    icprl reproduce --list
+    icprl reproduce darkroom_ipref                     # 3 training seeds per method, then evaluation
+    icprl reproduce darkroom_ipref --seeds 0 --jobs 1  # a quicker, one-seed version
+    icprl reproduce darkroom_ipref --dry-run           # print the commands only
+
+A table is a list of runs (a method's configs and overrides) and the evaluations made of them. Every run
+is trained once per training seed (``--seed_everything``) with ``icprl fit`` in its own process, at most
+``--jobs`` at a time (``OMP_NUM_THREADS`` = cores / jobs each), its log in ``<work>/<table>/<run>-seed<s>.log``;
+then ``icprl evaluate`` deploys each run's last checkpoints (all its training seeds) on the held-out
+contexts with the context diagnostics, greedy and sampled, and writes ``docs/results/<table>[_sampled]``
+(``.json``, ``.md``, ``.png``, ``_diagnostics.png``). Training seeds share the dataset (the family's seed
+fixes it); they differ in initialization, shuffling and the pairs drawn.
+
+Each fit logs to CSV; the rollout callback's held-out returns per epoch become ``learning_curves`` in
+the summary and ``docs/results/<table>_curve.png``. A finished fit records its checkpoint in
+``<run>-seed<s>.json`` with a digest of its inputs (the fit command and the text of its config files);
+running the command again skips a fit whose inputs are unchanged, so an interrupted reproduction resumes
+where it stopped, and retrains one whose command or configs changed since (``--refit`` trains all
+again). The command prints, and writes to ``docs/results/<table>_reproduce.json``, each stage's
+wall-clock seconds, the checkpoints and the exact commands.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import replace
+from pathlib import Path
+
+from icprl_lightning.io import write_json_atomic
+from icprl_lightning.reproduce.figures import FIGURES, curve_figure
+from icprl_lightning.reproduce.fit_logs import final_epoch_means, learning_curve
+from icprl_lightning.reproduce.tables import TABLES, Evaluation, Run, Table, slug
+
+
+def fit_command(run: Run, seed: int, root: Path, needed: dict[str, str] | None = None) -> list[str]:
+    """``icprl fit`` of one run and training seed, logging to CSV in ``<root>/<run>-seed<s>/version_0``;
+    ``needed`` maps each run of ``run.needs`` to its checkpoint for this seed."""
+    configs = [arg for config in run.configs for arg in ("--config", config)]
+    stages = []
+    for flag, names in run.needs:
+        paths = [(needed or {})[name] for name in names]
+        stages += [flag, paths[0] if len(names) == 1 else "[" + ",".join(paths) + "]"]
+    return ["icprl", "fit", *configs, *run.overrides, *stages, "--seed_everything", str(seed),
+            "--trainer.logger", "lightning.pytorch.loggers.CSVLogger", "--trainer.logger.init_args.save_dir",
+            str(root), "--trainer.logger.init_args.name", f"{slug(run.name)}-seed{seed}",
+            "--trainer.default_root_dir", str(root)]
+
+
+def fit_inputs(run: Run, command: list[str], needed_inputs: tuple[str, ...] = ()) -> str:
+    """Digest of what a fit's result depends on that this command controls: its arguments, the text of its
+    config files and the digests of the earlier stages it needs (the code is the repository's: a table is
+    remade from one commit)."""
+    digest = hashlib.sha256(shlex.join(command).encode())
+    for config in run.configs:
+        digest.update(b"\0" + Path(config).read_bytes())
+    for inputs in needed_inputs:
+        digest.update(b"\0" + inputs.encode())
+    return digest.hexdigest()
+
+
+def stages(runs: tuple[Run, ...]) -> list[list[Run]]:
+    """The runs in the order they can be trained: each stage only needs runs of earlier stages."""
+    names = {run.name for run in runs}
+    order, placed = [], set()
+    while len(placed) < len(runs):
+        ready = [r for r in runs if r.name not in placed and all(n in placed for _, ns in r.needs for n in ns)]
+        if not ready:
+            missing = {n for r in runs for _, ns in r.needs for n in ns} - names
+            raise ValueError(f"runs need {sorted(missing)}, which the table lacks" if missing else
+                             "the runs' needs form a cycle")
+        order.append(ready)
+        placed.update(r.name for r in ready)
+    return order
+
+
+def evaluate_command(table: Table, evaluation: Evaluation, checkpoints: dict[str, list[str]], out_dir: Path
+                     ) -> list[str]:
+    command = ["icprl", "evaluate", "--title", table.title, "--seeds", *map(str, table.eval_seeds),
+               *evaluation.flags, "--out", str(out_dir / f"{table.name}{evaluation.suffix}")]
+    if table.contexts != ("own",):
+        command += ["--contexts", *table.contexts]
+    for run in (r for r in table.runs if r.evaluated):
+        # the first seed's saved config.yaml names the run's exact dataset (configs, overlays and overrides)
+        config = Path(checkpoints[run.name][0]).parent.parent / "config.yaml"
+        command += ["--run", f"{run.name}={config}:{','.join(checkpoints[run.name])}"]
+    for baseline in table.baselines:
+        command += ["--baseline", baseline]
+    return command
+
+
+def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: int, which: str = "last") -> dict:
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "WANDB_MODE": os.environ.get("WANDB_MODE", "disabled")}
+    start = time.time()
+    with open(log, "w") as out:
+        code = subprocess.run([sys.executable, "-m", "icprl_lightning.cli", *command[1:]], stdout=out,
+                              stderr=subprocess.STDOUT, env=env).returncode
+    if code != 0:
+        raise RuntimeError(f"{shlex.join(command)} failed (exit {code}); its log: {log}")
+    last = [line.split(":", 1)[1].strip() for line in log.read_text().splitlines()
+            if line.startswith(f"{which} checkpoint:")]
+    if not last:
+        raise RuntimeError(f"{shlex.join(command)} printed no '{which} checkpoint:' line; its log: {log}")
+    result = {"command": shlex.join(command), "inputs_sha256": inputs, "checkpoint": last[-1],
+              "seconds": round(time.time() - start, 1)}
+    write_json_atomic(record, result)
+    return result
+
+
+def needed_runs(table: Table, only: list[str]) -> Table:
+    """``table`` cut to the runs named in ``only`` and the earlier stages they need."""
+    by_name = {run.name: run for run in table.runs}
+    unknown = sorted(set(only) - set(by_name))
+    if unknown:
+        raise ValueError(f"--only {unknown}: no such run in {table.name}; its runs: {list(by_name)}")
+    keep, todo = set(), list(only)
+    while todo:
+        name = todo.pop()
+        if name not in keep:
+            keep.add(name)
+            todo += [n for _, names in by_name[name].needs for n in names]
+    return replace(table, runs=tuple(run for run in table.runs if run.name in keep))
+
+
+def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Path, refit: bool = False,
+              dry_run: bool = False, threads: int | None = None, only: list[str] | None = None) -> dict:
+    """Train every run of ``table`` per seed (resuming recorded fits), then evaluate and write the outputs; with
+    ``only``, train just those runs and what they need, and stop there (the records serve the full command)."""
+    if only:
+        table = needed_runs(table, only)
+    root = work / table.name
+    root.mkdir(parents=True, exist_ok=True)
+    threads = threads or max(1, (os.cpu_count() or 1) // jobs)
+    done: dict[tuple[str, int], dict] = {}
+    run_seeds = {run.name: list(run.seeds or seeds) for run in table.runs}
+    for run in table.runs:
+        for _, names in run.needs:
+            for name in names:
+                if not set(run_seeds[run.name]) <= set(run_seeds[name]):
+                    raise ValueError(f"{run.name} needs {name} at training seeds {run_seeds[run.name]}, "
+                                     f"which has only {run_seeds[name]}")
+    start = time.time()
+    order = [run for stage in stages(table.runs) for run in stage]  # every fit after the fits it needs
+
+    def fit(run: Run, seed: int, needed: list[dict | None]) -> dict | None:
+        """The fit's record: reused while its inputs are unchanged, else trained (None: dry run, not known)."""
+        if None in needed:  # dry run: an earlier stage still to train, so its checkpoint is unknown
+            print(f"# {run.name} seed {seed}: after the runs it needs", flush=True)
+            return None
+        paths = dict(zip((n for _, names in run.needs for n in names), (n["checkpoint"] for n in needed), strict=True))
+        record = root / f"{slug(run.name)}-seed{seed}.json"
+        command = fit_command(run, seed, root / "runs", paths)
+        inputs = fit_inputs(run, command, tuple(n["inputs_sha256"] for n in needed))
+        recorded = json.loads(record.read_text()) if record.exists() and not refit else None
+        if recorded is not None and recorded.get("inputs_sha256") == inputs:
+            return recorded
+        if recorded is not None:
+            print(f"{run.name} seed {seed}: its command, configs or earlier stages changed since {record} was "
+                  "written; training it again", flush=True)
+        if dry_run:
+            print(shlex.join(command), flush=True)
+            return None
+        print(f"  training {run.name} seed {seed}", flush=True)
+        result = _run_fit(command, inputs, root / f"{slug(run.name)}-seed{seed}.log", record, threads, run.checkpoint)
+        print(f"  {run.name} seed {seed}: {result['seconds']} s -> {result['checkpoint']}", flush=True)
+        return result
+
+    # A worker waits for the fits its run needs: they were submitted before it, so they are running or done
+    # (never queued behind it), and a later stage starts as soon as its own seed's earlier stages are done.
+    futures: dict[tuple[str, int], Future] = {}
+    with ThreadPoolExecutor(max_workers=1 if dry_run else jobs) as pool:
+        for run in order:
+            for seed in run_seeds[run.name]:
+                deps = [futures[(name, seed)] for _, names in run.needs for name in names]
+
+                def task(run: Run = run, seed: int = seed, deps: list[Future] = deps) -> dict | None:
+                    return fit(run, seed, [d.result() for d in deps])
+
+                futures[(run.name, seed)] = pool.submit(task)
+        for key, future in futures.items():
+            result = future.result()
+            if result is not None:
+                done[key] = result
+    if dry_run:
+        return {}
+    fit_seconds = round(time.time() - start, 1)
+    if only:
+        print(f"{table.name}: trained {sorted(only)} and what they need in {fit_seconds} s; run the command without "
+              "--only to evaluate the whole table", flush=True)
+        return {"fits": {f"{n}-seed{s}": r for (n, s), r in sorted(done.items())}, "fit_wall_seconds": fit_seconds}
+    checkpoints = {run.name: [done[(run.name, s)]["checkpoint"] for s in run_seeds[run.name]] for run in table.runs}
+    evaluations = []
+    from icprl_lightning.evaluation.command import main as evaluate_main
+
+    for evaluation in table.evaluations if any(run.evaluated for run in table.runs) else ():
+        command = evaluate_command(table, evaluation, checkpoints, out_dir)
+        began = time.time()
+        evaluate_main(command[2:])
+        evaluations.append({"command": shlex.join(command), "seconds": round(time.time() - began, 1)})
+    if table.figure:
+        FIGURES[table.figure](table, out_dir)
+    curves = {run.name: {str(s): learning_curve(done[(run.name, s)]["checkpoint"]) for s in run_seeds[run.name]}
+              for run in table.runs if run.evaluated}
+    curve_figure(table, curves, out_dir / f"{table.name}_curve.png")
+    final_metrics = {f"{run.name}-seed{s}": final_epoch_means(done[(run.name, s)]["checkpoint"])
+                     for run in table.runs for s in run_seeds[run.name]}
+    summary = {"table": table.name, "training_seeds": seeds, "jobs": jobs, "threads_per_fit": threads,
+               "fit_wall_seconds": fit_seconds, "final_epoch_train_metrics": final_metrics,
+               "fits": {f"{n}-seed{s}": r for (n, s), r in sorted(done.items())}, "evaluations": evaluations,
+               "learning_curves": curves, "total_wall_seconds": round(time.time() - start, 1)}
+    write_json_atomic(out_dir / f"{table.name}_reproduce.json", summary)
+    print(f"{table.name}: fits {fit_seconds} s wall, all {summary['total_wall_seconds']} s "
+          f"-> {out_dir / table.name}.md", flush=True)
+    return summary
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(prog="icprl reproduce", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("table", nargs="?", choices=sorted(TABLES))
+    parser.add_argument("--list", action="store_true", help="list the tables and what one fit costs")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
+    parser.add_argument("--jobs", type=int, default=2, help="fits at a time (each gets cores / jobs threads)")
+    parser.add_argument("--threads", type=int, help="torch threads per fit (default: cores / jobs)")
+    parser.add_argument("--work", default="runs/reproduce", help="fit logs, run directories and records")
+    parser.add_argument("--out", default="docs/results", help="where the tables and figures go")
+    parser.add_argument("--refit", action="store_true", help="train again even where a fit is recorded")
+    parser.add_argument("--dry-run", action="store_true", help="print the fit commands, run nothing")
+    parser.add_argument("--only", nargs="+", metavar="RUN", help="train only these runs (and the earlier stages "
+                        "they need), evaluate nothing")
+    args = parser.parse_args(argv)
+    if args.list or args.table is None:
+        for table in TABLES.values():
+            print(f"{table.name}: {table.title}; {len(table.runs)} runs × seeds; {table.budget}")
+        return {}
+    if args.jobs < 1:
+        parser.error(f"--jobs must be ≥ 1, got {args.jobs}")
+    return reproduce(TABLES[args.table], args.seeds, args.jobs, Path(args.work), Path(args.out), args.refit,
+                     args.dry_run, args.threads, args.only)

@@ -1,0 +1,240 @@
+"""The catalogue of ``icprl reproduce``: a table is runs (a method's configs and overrides, per training seed)
+and the evaluations made of them; ``TABLES`` holds every table of ``docs/RESULTS.md`` that one command remakes."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+ALL_CONTEXTS = ("own", "random_labels", "flipped_labels", "other_task")
+
+
+def slug(name: str) -> str:
+    """A run name as a file name (no spaces, commas or '=', which ``--run`` and paths would misread)."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("_")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One method of a table: its configs (stacked, as repeated ``--config``) and command-line overrides.
+
+    A later stage of a pipeline (ICRG after RewardGen) names its earlier stages in ``needs``: each
+    ``(flag, runs)`` passes the checkpoints of the same training seed of ``runs`` as ``flag``'s value (one path,
+    or a list when ``runs`` has several). Such a run is trained after the runs it needs, and again whenever
+    one of them is.
+    """
+
+    name: str  # a table row; no '=' or ',' (``icprl evaluate --run NAME=CONFIG:CKPT,CKPT``)
+    configs: tuple[str, ...]
+    overrides: tuple[str, ...] = ()
+    seeds: tuple[int, ...] | None = None  # this run's training seeds, whatever the command's ``--seeds``
+    needs: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    evaluated: bool = True  # False: an earlier stage that is no policy (RewardGen): trained, not deployed
+    checkpoint: str = "last"  # the checkpoint the record keeps: "last", or "best" (the fit's monitored best)
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One ``icprl evaluate`` of a table's runs: output suffix and its flags (``--greedy``, ``--sample``)."""
+
+    suffix: str
+    flags: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Table:
+    name: str
+    title: str
+    runs: tuple[Run, ...]
+    evaluations: tuple[Evaluation, ...] = (Evaluation("", ("--greedy",)), Evaluation("_sampled", ("--sample",)))
+    contexts: tuple[str, ...] = ALL_CONTEXTS
+    eval_seeds: tuple[int, ...] = (0, 1)
+    baselines: tuple[str, ...] = ()
+    budget: str = ""  # what one run costs here, for --list
+    figure: str = ""  # a table-specific figure made from the evaluations (``FIGURES``)
+
+
+DARKROOM_METHODS = (("DPT", "configs/dpt_darkroom.yaml"), ("DP2T", "configs/dp2t_darkroom.yaml"),
+                    ("ICPO", "configs/icpo_darkroom.yaml"))
+# ICPO as every DarkRoom table was trained before the β × λ sweep picked β = 0.1, λ = 1 (the configs' default since)
+ICPO_BETA1_LAM05 = ("--model.init_args.beta", "1.0", "--model.init_args.lam", "0.5")
+UNIFORM_STATES = "configs/overlays/uniform_states.yaml"
+# 400 contexts per goal (4× the paper-recipe configs' data), 2 epochs = 2,000 steps, held-out rollouts every 250
+LABEL_INFORMATIVE = ("--data.init_args.setting.init_args.trajectories_per_task", "400",
+                     "--trainer.val_check_interval", "250")
+
+
+# DarkRoom T-PRL at 10× the configs' 60 trajectory pairs per goal (issue 17), at the configs' optimizer steps:
+# every epoch is 300 batches drawn from the larger dataset
+TPRL_SCALE = ("--data.init_args.setting.init_args.trajectories_per_task", "600", "--trainer.limit_train_batches", "300")
+
+
+def _dit_sweep_runs() -> tuple[Run, ...]:
+    """DIT on true rewards: η at γ = 0.95, a longer horizon γ = 0.99 at η = 1, and the uncentred advantages of
+    before issue 17 (5 fits: what one seed of the sweep costs on 2 cores in about an hour)."""
+    def dit(name: str, eta: str, gamma: str, center: str = "true") -> Run:
+        return Run(name, ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, "--model.init_args.eta", eta,
+                                                          "--model.init_args.gamma", gamma,
+                                                          "--model.init_args.center_advantages", center))
+    return (dit("uncentred eta1 g0.95", "1.0", "0.95", "false"),
+            *(dit(f"eta{e} g0.95", e, "0.95") for e in ("1.0", "0.3", "0.1")),
+            dit("eta1.0 g0.99", "1.0", "0.99"))
+
+
+# DIT's η and γ picked by darkroom_dit_sweep (DIT on true rewards), for DIT and ICRG alike
+DIT_PICK = ("--model.init_args.eta", "1.0", "--model.init_args.gamma", "0.95")
+FOLDS = 2
+REWARD_GEN = "configs/reward_gen_darkroom.yaml"
+
+
+def _tprl_runs() -> tuple[Run, ...]:
+    """ICRG's stages beside their oracles: RewardGen on all training goals and on each fold's complement, ICRG on
+    in-sample and on cross-fitted labels, DIT on true rewards, DP²T on the same pairs."""
+    folds = tuple(f"RewardGen fold{i}" for i in range(FOLDS))
+    icrg = ("configs/icrg_darkroom.yaml",)
+    stage1 = ("--model.init_args.reward_gen_checkpoint", ("RewardGen",))
+    return (Run("RewardGen", (REWARD_GEN,), TPRL_SCALE, evaluated=False, checkpoint="best"),
+            *(Run(name, (REWARD_GEN,), (*TPRL_SCALE, "--data.init_args.folds", str(FOLDS),
+                                        "--data.init_args.holdout_fold", str(i)), evaluated=False, checkpoint="best")
+              for i, name in enumerate(folds)),
+            Run("ICRG in-sample labels", icrg, (*TPRL_SCALE, *DIT_PICK), needs=(stage1,)),
+            Run("ICRG cross-fitted labels", icrg, (*TPRL_SCALE, *DIT_PICK),
+                needs=(stage1, ("--model.init_args.cross_fit_checkpoints", folds))),
+            Run("DIT true rewards", ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, *DIT_PICK)),
+            # γ = 0.99: the sweep's best DIT on true rewards, which finished after this table's other fits
+            Run("ICRG in-sample labels g0.99", icrg, (*TPRL_SCALE, "--model.init_args.eta", "1.0",
+                                                      "--model.init_args.gamma", "0.99"), needs=(stage1,)),
+            Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
+
+
+# Meta-World Reach T-PRL on the paper's recipe (issue 17, points 3–4): both trajectories of a pair from the SAC
+# oracle's 50%-return checkpoint (configs/overlays/sac_oracle.yaml), not the 86%-uniform scripted mixture; 4× the
+# configs' 10 pairs per goal, every epoch 4× the steps. ICRG's stages beside their oracle (DIT on true rewards), DP²T.
+SAC_ORACLE = "configs/overlays/sac_oracle.yaml"
+REACH_TPRL_PAIRS = ("--data.init_args.setting.init_args.trajectories_per_task", "40")
+
+
+def _reach_tprl_runs() -> tuple[Run, ...]:
+    stage1 = ("--model.init_args.reward_gen_checkpoint", ("RewardGen",))
+    return (Run("RewardGen", ("configs/reward_gen_metaworld.yaml", SAC_ORACLE), REACH_TPRL_PAIRS, evaluated=False,
+                checkpoint="best"),
+            Run("ICRG", ("configs/icrg_metaworld.yaml", SAC_ORACLE), REACH_TPRL_PAIRS, needs=(stage1,)),
+            Run("DIT true rewards", ("configs/dit_metaworld.yaml", SAC_ORACLE), REACH_TPRL_PAIRS),
+            Run("DP2T", ("configs/dp2t_metaworld_tprl.yaml", SAC_ORACLE), REACH_TPRL_PAIRS))
+
+
+# Meta-World Reach I-PRL (issue 13): the paper's recipe (the configs as they are: the committed SAC oracle) and
+# the scripted-expert one (its overlays), at multiples of the configs' 20 contexts per training goal, the
+# configs' 50 epochs each. Per recipe: (DPT's overlays, the I-PRL configs' overlays).
+REACH_RECIPES = {"scripted": (("configs/overlays/scripted_expert_dpt.yaml",),
+                              ("configs/overlays/scripted_expert_ipref.yaml",)),
+                 "sac": ((), ())}
+RECIPE_TITLES = {"scripted": "scripted-expert recipe", "sac": "the paper's recipe (SAC oracle)"}
+REACH_SCALES = (1, 2, 4, 8)
+REACH_CONTEXTS_PER_GOAL = 20
+
+
+def _reach_runs(recipe: str, scale: int) -> tuple[Run, ...]:
+    """DPT, DP²T and ICPO on one Reach recipe at ``scale`` × 20 contexts per goal (DPT's training contexts from
+    the converged policy on the SAC recipe, as the paper's)."""
+    dpt, ipref = REACH_RECIPES[recipe]
+    data = ("--data.init_args.setting.init_args.trajectories_per_task", str(REACH_CONTEXTS_PER_GOAL * scale))
+    runs = (Run("DPT", ("configs/dpt_metaworld.yaml", *dpt), data),
+            Run("DP2T", ("configs/dp2t_metaworld.yaml", *ipref), data),
+            Run("ICPO", ("configs/icpo_metaworld.yaml", *ipref), data))
+    if scale == 1:  # ICPO as it was trained before 2 December (ICPOModule.pair_steps): the context's length a clock
+        runs += (Run("ICPO aligned pairs", ("configs/icpo_metaworld.yaml", *ipref),
+                     (*data, "--model.init_args.pair_steps", "aligned"), seeds=(0,)),)
+    return runs
+
+
+def _reach_tables() -> tuple[Table, ...]:
+    return tuple(
+        Table(f"metaworld_{recipe}_x{k}", f"Meta-World Reach I-PRL, {RECIPE_TITLES[recipe]}, "
+              f"{REACH_CONTEXTS_PER_GOAL * k} contexts per goal: DPT, DP²T, ICPO", _reach_runs(recipe, k),
+              baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
+              # greedy only: a Gaussian-mean head acts by its mean when sampling too, so "_sampled" repeated it
+              evaluations=(Evaluation("", ("--greedy",)),),
+              budget=f"≈ {5 + 4 * k} min per fit on 1 idle core (data generation included)")
+        for recipe in REACH_RECIPES for k in REACH_SCALES)
+
+
+BETAS, LAMBDAS = ("1", "0.3", "0.1", "0.03"), ("0.25", "0.5", "0.75", "1")
+MISTAKE_RATES = ("0", "0.1", "0.2", "0.3")
+
+
+def teacher(epsilon: str) -> tuple[str, ...]:
+    """Overrides: B-Pref's scripted teacher labels the pretraining data, rationality 1 (the family's Bradley–Terry
+    temperature), mistake rate ``epsilon``."""
+    key = "--data.init_args.setting.init_args.annotator"
+    return (key, "icprl_lightning.annotators.ScriptedTeacher", f"{key}.init_args.beta", "1.0",
+            f"{key}.init_args.epsilon", epsilon)
+
+
+def _lambda_beta_runs() -> tuple[Run, ...]:
+    """ICPO on the paper's DarkRoom recipe for every β × λ: the four corners with training seeds 0, 1, 2, the
+    others with the command's ``--seeds`` (``--seeds 0``: 24 fits)."""
+    runs = []
+    for beta in BETAS:
+        for lam in LAMBDAS:
+            corner = beta in (BETAS[0], BETAS[-1]) and lam in (LAMBDAS[0], LAMBDAS[-1])
+            runs.append(Run(f"b{beta}_l{lam}", ("configs/icpo_darkroom.yaml",),
+                            ("--model.init_args.beta", beta, "--model.init_args.lam", lam),
+                            seeds=(0, 1, 2) if corner else None))
+    return tuple(runs)
+
+
+TABLES = {t.name: t for t in (
+    Table("darkroom_ipref", "DarkRoom I-PRL, the paper's recipe (states follow the preferred action)",
+          (*(Run(n, (c,)) for n, c in DARKROOM_METHODS),
+           Run("ICPO beta1 lam0.5", ("configs/icpo_darkroom.yaml",), ICPO_BETA1_LAM05)),
+          baselines=("DQN from scratch=docs/results/dqn_from_scratch_darkroom.json",),
+          budget="≈ 2 min per fit on 1 core of 2 busy ones"),
+    Table("darkroom_ipref_uniform", "DarkRoom I-PRL, label-informative recipe (states drawn uniformly)",
+          (*(Run(n, (c, UNIFORM_STATES), LABEL_INFORMATIVE) for n, c in DARKROOM_METHODS),
+           Run("ICPO beta1 lam0.5", ("configs/icpo_darkroom.yaml", UNIFORM_STATES),
+               (*LABEL_INFORMATIVE, *ICPO_BETA1_LAM05))),
+          baselines=("DQN from scratch=docs/results/dqn_from_scratch_darkroom.json",),
+          budget="≈ 8–11 min per fit on 1 core of 2 busy ones (2,000 steps of 32 contexts)"),
+    Table("darkroom_lambda_beta", "ICPO on DarkRoom I-PRL: β × λ", _lambda_beta_runs(), contexts=("own",),
+          eval_seeds=(0,),
+          budget="≈ 2.5 min per fit on 1 core of 2 busy ones; 24 fits with --seeds 0", figure="lambda_beta"),
+    Table("darkroom_dit_sweep", "DIT on true rewards, DarkRoom T-PRL trajectories (600 pairs per goal): η and γ",
+          _dit_sweep_runs(), contexts=("own",), eval_seeds=(0, 1),
+          budget="≈ 11 min per fit on 1 idle core; 5 fits with --seeds 0"),
+    Table("darkroom_tprl", "DarkRoom T-PRL (600 pairs per goal): ICRG's stages against their oracles, DP²T",
+          _tprl_runs(),
+          budget="≈ 20–40 min per fit on 1 core of 2 busy ones; 7 runs × seeds, each ICRG after its RewardGens"),
+    Table("reward_gen_forms", "RewardGen in the paper's form (its own pair, read causally) beside the other-pair "
+          "form: DarkRoom (the other-pair RewardGen is darkroom_tprl's) and Meta-World Reach T-PRL",
+          (Run("DarkRoom causal", (REWARD_GEN,), (*TPRL_SCALE, "--model.init_args.pair_source", "context_causal"),
+               evaluated=False, checkpoint="best"),
+           Run("Reach other pair", ("configs/reward_gen_metaworld.yaml",), evaluated=False, checkpoint="best"),
+           Run("Reach causal", ("configs/reward_gen_metaworld.yaml",),
+               ("--model.init_args.pair_source", "context_causal"), evaluated=False, checkpoint="best")),
+          budget="≈ 5–20 min per fit on 1 core; measured by scripts/reward_gen_quality.py, not deployed"),
+    *_reach_tables(),
+    Table("metaworld_tprl_sac", "Meta-World Reach T-PRL, the paper's recipe (pairs from SAC's 50%-return "
+          "checkpoint, 40 per goal): ICRG, DIT on true rewards, DP²T", _reach_tprl_runs(),
+          evaluations=(Evaluation("", ("--greedy",)),),  # Gaussian means: sampling would repeat the greedy pass
+          baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
+          budget="≈ 10–25 min per fit on 1 core (data generation included); ICRG after its RewardGen"),
+    Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
+          evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS,
+          eval_seeds=(0,), budget="≈ 2–4 min per fit on 1 core"),
+    Table("bandit_teacher_noise",
+          "Linear dueling bandits: ICPO pretrained on a scripted teacher's labels (mistake rate ε)",
+          tuple(Run(f"ICPO eps{e}", ("configs/icpo_bandit.yaml",), teacher(e)) for e in MISTAKE_RATES),
+          evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS, eval_seeds=(0,),
+          budget="≈ 2 min per fit on 1 core; 12 fits", figure="teacher_noise"),
+    Table("darkroom_teacher_noise",
+          "DarkRoom I-PRL, label-informative recipe: ICPO pretrained on a scripted teacher's labels (mistake rate ε)",
+          tuple(Run(f"ICPO eps{e}", ("configs/icpo_darkroom.yaml", UNIFORM_STATES), (*LABEL_INFORMATIVE, *teacher(e)))
+                for e in MISTAKE_RATES),
+          budget="≈ 8–11 min per fit on 1 core of 2 busy ones; 12 fits", figure="teacher_noise"),
+    Table("bandit_paper_data", "Linear dueling bandits, the paper's 100k pretraining contexts: ICPO vs DTS",
+          (Run("ICPO", ("configs/icpo_bandit.yaml",),
+               ("--data.init_args.setting.init_args.n_train_problems", "50000", "--trainer.max_epochs", "1")),),
+          evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS, eval_seeds=(0,),
+          budget="one epoch of 100k contexts (3,125 steps): ≈ 7 min per fit on 1 core"),
+)}
