@@ -40,10 +40,16 @@ class Agent:
     """A deployed in-context policy for B tasks at once (see the module docstring)."""
 
     def __init__(self, policy: InContextPolicy, greedy: bool = True, use_cache: bool = True,
-                 seed: int | None = None) -> None:
+                 seed: int | None = None, compile: bool = False) -> None:
         self.policy = policy
         self.greedy = greedy
         self.use_cache = use_cache
+        # torch.compile of the per-step query (one token against the cache): its small ops fused into a few
+        # kernels. ≈ 2x a small model's act() at 100 tasks, no gain at 1,000 (bound by reading the cache), and
+        # a one-time compile of tens of seconds per context length (benchmarks/deployment_throughput.py --compile)
+        if compile and not use_cache:
+            raise ValueError("compile=True compiles the cached query step: it needs use_cache=True")
+        self._query = torch.compile(policy.query, dynamic=False) if compile else policy.query
         self.generator: torch.Generator | None = None
         if seed is not None:
             self.generator = torch.Generator(device=self.device).manual_seed(seed)
@@ -82,7 +88,7 @@ class Agent:
         if self.use_cache:
             if self.cache is None:
                 self.cache = self.policy.encode(self.context)
-            out = self.policy.query(self.cache, query)
+            out = self._query(self.cache, query)
         else:
             visible = torch.tensor([self.context.states.shape[1]], device=self.device)
             out = self.policy(self.context, query, visible)
@@ -144,17 +150,18 @@ class Agent:
 
 
 def load_agent(checkpoint: str | Path, greedy: bool | None = None, use_cache: bool = True, seed: int | None = None,
-               map_location: str | torch.device = "cpu"):
+               map_location: str | torch.device = "cpu", compile: bool = False):
     """Load any icprl_lightning method's checkpoint as a deployable agent.
 
     ``greedy`` None keeps the method's own default (argmax / Gaussian mean for DPT, DP²T and ICPO;
     sampling for ICRG, whose advantage-weighted policy collapses at its argmax); True or False forces it.
     The file is read as untrusted (``checkpoints.py``): ``weights_only=True``, the class from the allow-list
     of this package's methods, the stored checksum verified; any problem is one ``ValueError`` (or
-    ``FileNotFoundError``) naming the path.
+    ``FileNotFoundError``) naming the path. ``compile`` runs each act()'s query step through ``torch.compile``
+    (``Agent``): worth its one-time compile for many episodes of small models.
     """
     from icprl_lightning.checkpoints import load_module
 
     module = load_module(checkpoint, map_location=map_location)
     options = {} if greedy is None else {"greedy": greedy}
-    return module.make_agent(use_cache=use_cache, seed=seed, **options)
+    return module.make_agent(use_cache=use_cache, seed=seed, compile=compile, **options)

@@ -76,6 +76,31 @@ def test_checkpoint_round_trip_cached_equals_uncached(icpo_checkpoint):
         obs = torch.rand_like(obs) * 9
 
 
+@pytest.mark.slow  # torch.compile: tens of seconds of compilation
+def test_compiled_agent_acts_as_the_eager_one(icpo_checkpoint):
+    """load_agent(compile=True) runs the query step through torch.compile: the same logits to float tolerance,
+    over a second reset (new context, same shapes: no recompile needed) too."""
+    path, dm = icpo_checkpoint
+    eager, compiled = load_agent(path), load_agent(path, compile=True)
+    for quality in ("high", "low"):
+        ctx = _eval_context(dm, quality)
+        eager.reset(ctx)
+        compiled.reset(ctx)
+        obs = ctx.states[:, 0]
+        for _ in range(3):
+            actions = compiled.act(obs)
+            assert actions.shape == (ctx.batch_size,) and actions.dtype == torch.int64
+            eager.act(obs)  # encodes the eager cache
+            logits = eager.policy.query(eager.cache, obs[:, None])[:, 0]
+            torch.testing.assert_close(compiled._query(compiled.cache, obs[:, None])[:, 0], logits)
+            top2 = logits.topk(2).values
+            clear = top2[:, 0] - top2[:, 1] > 1e-4  # the argmax is unambiguous at float tolerance
+            assert torch.equal(actions[clear], logits.argmax(-1)[clear])
+            obs = torch.rand_like(obs) * 9
+    with pytest.raises(ValueError, match="use_cache=True"):
+        load_agent(path, use_cache=False, compile=True)
+
+
 def test_sampling_is_seeded(icpo_checkpoint):
     path, dm = icpo_checkpoint
     ctx = _eval_context(dm)

@@ -94,7 +94,7 @@ class InContextModule(L.LightningModule):
 
         stamp(self, checkpoint)
 
-    def make_agent(self, greedy: bool = True, use_cache: bool = True, seed: int | None = None):
+    def make_agent(self, greedy: bool = True, use_cache: bool = True, seed: int | None = None, compile: bool = False):
         from icprl_lightning.deploy import Agent
 
-        return Agent(self.policy, greedy=greedy, use_cache=use_cache, seed=seed)
+        return Agent(self.policy, greedy=greedy, use_cache=use_cache, seed=seed, compile=compile)

@@ -75,10 +75,10 @@ class DITModule(InContextModule):
         self.q_value = InContextEstimator(with_action=True, **estimator)
         self.v_value = InContextEstimator(with_action=False, **estimator)
 
-    def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None):
+    def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None, compile: bool = False):
         """Samples a ~ T^R(· | s, D) by default, the paper's deployment: an advantage-weighted clone of the behavior
         is a distribution over its actions, whose argmax can get stuck (e.g. staying put away from the goal)."""
-        return super().make_agent(greedy=greedy, use_cache=use_cache, seed=seed)
+        return super().make_agent(greedy=greedy, use_cache=use_cache, seed=seed, compile=compile)
 
     def labeled_trajectories(self, batch: dict[str, Tensor]) -> tuple[RewardTrajectoryContext, RewardTrajectoryContext]:
         """The sample's two trajectories with their rewards (here the true ones)."""

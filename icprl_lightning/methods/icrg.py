@@ -211,8 +211,10 @@ class ICRGModule(DITModule):
             rewards[rows] = out
         return rewards
 
-    def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None) -> ICRGAgent:
-        return ICRGAgent(self.reward_gen, Agent(self.policy, greedy=greedy, use_cache=use_cache, seed=seed))
+    def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None, compile: bool = False
+                   ) -> ICRGAgent:
+        return ICRGAgent(self.reward_gen, Agent(self.policy, greedy=greedy, use_cache=use_cache, seed=seed,
+                                                compile=compile))
 
 
 class ICRGAgent:

@@ -134,6 +134,6 @@ class RewardGenModule(L.LightningModule):
 
         stamp(self, checkpoint)
 
-    def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None):
+    def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None, compile: bool = False):
         raise TypeError("a RewardGen checkpoint holds a reward model, not a policy: train ICRG on it (configs/"
                         "icrg_darkroom.yaml, model.init_args.reward_gen_checkpoint) and deploy that checkpoint")
