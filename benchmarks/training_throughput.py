@@ -37,7 +37,8 @@ except ImportError:  # pragma: no cover
 H = 100
 SIZES = {
     "dpt_small_4L_32d_b64": (dict(n_layer=4, n_embd=32, batch=64),
-                             [dict(heads=4), dict(heads=1), dict(heads=1, k=25), dict(heads=1, k=10)]),
+                             [dict(heads=4), dict(heads=1), dict(heads=1, k=25), dict(heads=1, k=10),
+                              dict(heads=4, compile=True), dict(heads=1, compile=True)]),
     "paper_6L_256d_b32": (dict(n_layer=6, n_embd=256, batch=32),
                           [dict(heads=8), dict(heads=8, bf16=True), dict(heads=1, bf16=True),
                            dict(heads=8, bf16=True, compile=True), dict(heads=8, bf16=True, k=25),
