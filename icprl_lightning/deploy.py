@@ -49,7 +49,7 @@ class Agent:
         # a one-time compile of tens of seconds per context length (benchmarks/deployment_throughput.py --compile)
         if compile and not use_cache:
             raise ValueError("compile=True compiles the cached query step: it needs use_cache=True")
-        self._query = torch.compile(policy.query, dynamic=False) if compile else policy.query
+        self._compiled_query = torch.compile(policy.query, dynamic=False) if compile else None
         self.generator: torch.Generator | None = None
         if seed is not None:
             self.generator = torch.Generator(device=self.device).manual_seed(seed)
@@ -88,7 +88,7 @@ class Agent:
         if self.use_cache:
             if self.cache is None:
                 self.cache = self.policy.encode(self.context)
-            out = self._query(self.cache, query)
+            out = (self._compiled_query or self.policy.query)(self.cache, query)
         else:
             visible = torch.tensor([self.context.states.shape[1]], device=self.device)
             out = self.policy(self.context, query, visible)

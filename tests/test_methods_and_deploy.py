@@ -92,7 +92,7 @@ def test_compiled_agent_acts_as_the_eager_one(icpo_checkpoint):
             assert actions.shape == (ctx.batch_size,) and actions.dtype == torch.int64
             eager.act(obs)  # encodes the eager cache
             logits = eager.policy.query(eager.cache, obs[:, None])[:, 0]
-            torch.testing.assert_close(compiled._query(compiled.cache, obs[:, None])[:, 0], logits)
+            torch.testing.assert_close(compiled._compiled_query(compiled.cache, obs[:, None])[:, 0], logits)
             top2 = logits.topk(2).values
             clear = top2[:, 0] - top2[:, 1] > 1e-4  # the argmax is unambiguous at float tolerance
             assert torch.equal(actions[clear], logits.argmax(-1)[clear])
