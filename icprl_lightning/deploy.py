@@ -45,8 +45,8 @@ class Agent:
         self.greedy = greedy
         self.use_cache = use_cache
         # torch.compile of the per-step query (one token against the cache): its small ops fused into a few
-        # kernels. ≈ 2x a small model's act() at 100 tasks, no gain at 1,000 (bound by reading the cache), and
-        # a one-time compile of tens of seconds per context length (benchmarks/deployment_throughput.py --compile)
+        # kernels: 1.4-2x a small model's env-steps/s at 100 tasks, after a one-time compile per context length
+        # (benchmarks/deployment_throughput.py --compile; docs/RESULTS.md, "Speed")
         if compile and not use_cache:
             raise ValueError("compile=True compiles the cached query step: it needs use_cache=True")
         self._compiled_query = torch.compile(policy.query, dynamic=False) if compile else None
