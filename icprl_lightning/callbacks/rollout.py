@@ -22,7 +22,7 @@ import lightning as L
 from icprl_lightning.callbacks.distributed import log_broadcast, on_rank_zero
 from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, applicable, diagnose_suite
 from icprl_lightning.evaluation.report import results_table, show_table
-from icprl_lightning.evaluation.rollout import rollout_in_context, summarize
+from icprl_lightning.evaluation.rollout import rollout_in_context, suite_env, summarize
 
 
 class InContextRolloutCallback(L.Callback):
@@ -62,14 +62,15 @@ class InContextRolloutCallback(L.Callback):
         results: dict[str, dict[str, float]] = {}
         logged: dict[str, float] = {}
         for suite in trainer.datamodule.evaluation_suites():
-            result = summarize(suite, rollout_in_context(agent, suite, seed=self.seed))
-            prefix = f"val/{suite.env_name}/{suite.quality}"
-            results[prefix] = result
-            logged.update({f"{prefix}/{k}": float(v) for k, v in result.items()})
-            for diagnostic in applicable(suite.context, self.diagnostics):
-                changed = diagnose_suite(suite, diagnostic, seed=self.seed)
-                result = summarize(changed, rollout_in_context(agent, changed, seed=self.seed))
-                results[f"{prefix}/{diagnostic}"] = result
-                logged.update({f"{prefix}/{diagnostic}/{k}": float(v) for k, v in result.items()
-                               if not k.startswith(("behavior", "optimal", "expert"))})
+            with suite_env(suite) as env:  # the own context and every diagnostic reset the same env
+                result = summarize(suite, rollout_in_context(agent, suite, seed=self.seed, env=env))
+                prefix = f"val/{suite.env_name}/{suite.quality}"
+                results[prefix] = result
+                logged.update({f"{prefix}/{k}": float(v) for k, v in result.items()})
+                for diagnostic in applicable(suite.context, self.diagnostics):
+                    changed = diagnose_suite(suite, diagnostic, seed=self.seed)
+                    result = summarize(changed, rollout_in_context(agent, changed, seed=self.seed, env=env))
+                    results[f"{prefix}/{diagnostic}"] = result
+                    logged.update({f"{prefix}/{diagnostic}/{k}": float(v) for k, v in result.items()
+                                   if not k.startswith(("behavior", "optimal", "expert"))})
         return results, logged

@@ -26,10 +26,11 @@ from icprl_lightning.evaluation.rollout import (
     episode_stats,
     rollout_in_context,
     rollout_seeds,
+    suite_env,
     summarize,
 )
 
 __all__ = ["DIAGNOSTICS", "agent_duels", "behavior_duels", "curve_mean_sem", "diagnose", "diagnose_suite",
            "dts_duels", "episode_stats", "evaluate_duels", "method_name", "regret_curve", "regret_table",
-           "results_table", "rollout_in_context", "rollout_seeds", "seed_mean_curves", "summarize",
+           "results_table", "rollout_in_context", "rollout_seeds", "seed_mean_curves", "suite_env", "summarize",
            "summarize_regret"]

@@ -47,7 +47,7 @@ from icprl_lightning.deploy import load_agent
 from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, applicable, diagnose_suite
 from icprl_lightning.evaluation.duels import BASELINES, curve_mean_sem, seed_mean_curves, summarize_regret
 from icprl_lightning.evaluation.report import baseline_row, reference_rows, write_outputs
-from icprl_lightning.evaluation.rollout import episode_stats, rollout_seeds
+from icprl_lightning.evaluation.rollout import episode_stats, rollout_seeds, suite_env
 from icprl_lightning.metrics import mean_sem
 
 RESERVED = {"behavior", "optimal", "expert", *BASELINES}
@@ -105,13 +105,15 @@ def over_training_seeds(per_seed: list[dict[str, float]]) -> dict[str, Any]:
     return row
 
 
-def held_out_means(suite, diagnostic: str, checkpoint: str, seeds: list[int], greedy: bool | None) -> dict[str, float]:
+def held_out_means(suite, diagnostic: str, checkpoint: str, seeds: list[int], greedy: bool | None,
+                   env: Any = None) -> dict[str, float]:
     """One checkpoint's means over held-out tasks on ``suite`` with its context changed as ``diagnostic`` states.
 
-    The random labels of episode seed s are drawn from s, so every checkpoint sees the same contexts.
+    The random labels of episode seed s are drawn from s, so every checkpoint sees the same contexts. ``env``:
+    the suite's env to reuse (``evaluation.rollout.suite_env``), else a fresh one.
     """
     episodes = rollout_seeds(lambda seed: load_agent(checkpoint, greedy=greedy, seed=seed), suite, seeds,
-                             lambda seed: diagnose_suite(suite, diagnostic, seed))
+                             lambda seed: diagnose_suite(suite, diagnostic, seed), env=env)
     return episode_stats(suite, episodes)
 
 
@@ -123,12 +125,14 @@ def evaluate_rollouts(dm, checkpoints: list[str], seeds: list[int], greedy: bool
     own: dict[str, dict[str, Any]] = {}
     diagnosed: dict[str, dict[str, dict[str, Any]]] = {}
     for suite in dm.evaluation_suites():
-        for diagnostic in ["own", *applicable(suite.context, diagnostics)]:
-            row = over_training_seeds([held_out_means(suite, diagnostic, c, seeds, greedy) for c in checkpoints])
-            if diagnostic == "own":
-                own[suite.quality] = {**row, "reference": suite.reference}
-            else:
-                diagnosed.setdefault(diagnostic, {})[suite.quality] = row
+        with suite_env(suite) as env:  # one env per suite: every checkpoint, context and seed resets it
+            for diagnostic in ["own", *applicable(suite.context, diagnostics)]:
+                row = over_training_seeds([held_out_means(suite, diagnostic, c, seeds, greedy, env)
+                                           for c in checkpoints])
+                if diagnostic == "own":
+                    own[suite.quality] = {**row, "reference": suite.reference}
+                else:
+                    diagnosed.setdefault(diagnostic, {})[suite.quality] = row
     return own, diagnosed
 
 

@@ -8,6 +8,9 @@ flag was raised at some step, metaworld's criterion.
 
 * ``rollout_in_context(agent, suite, seed)`` — one episode per context of an ``EvalSuite``;
 * ``rollout_seeds(make_agent, suite, seeds)`` — the same for several episode seeds, concatenated;
+* ``suite_env(suite)`` — one vector env of a suite's tasks, to pass as ``env=`` to both: ``reset(seed=s)``
+  fixes every episode (the vector-env contract), so reusing one env gives the episodes fresh ones give,
+  without building it again (a Meta-World env starts worker processes: seconds, more than an episode);
 * ``episode_stats`` / ``summarize`` — mean ± sem over held-out tasks (``summarize`` adds the suite's
   behavior and optimal/expert references).
 
@@ -16,7 +19,8 @@ The context diagnostics (flipped / random labels, another task's context) are ``
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any, Protocol
 
 import numpy as np
@@ -32,33 +36,44 @@ class AgentLike(Protocol):
     def act(self, obs: torch.Tensor) -> torch.Tensor: ...
 
 
+@contextmanager
+def suite_env(suite: EvalSuite) -> Iterator[Any]:
+    """``suite.make_env()``, closed on exit (vector envs may hold worker processes: Meta-World's do)."""
+    env = suite.make_env()
+    try:
+        yield env
+    finally:
+        if hasattr(env, "close"):
+            env.close()
+
+
 @torch.no_grad()
-def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0) -> dict[str, np.ndarray]:
+def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0, env: Any = None) -> dict[str, np.ndarray]:
     """Run one episode per context; returns per-episode ``return`` [B] (and ``success`` when the env reports it).
 
     ``success`` is 1 for an episode whose ``info["success"]`` was true at any step (metaworld's criterion).
-    The env is closed afterwards.
+    ``env``: a vector env of the suite's tasks to reuse (``suite_env``), left open; by default a fresh one,
+    closed afterwards.
     """
-    env = suite.make_env()
-    try:
-        obs, _ = env.reset(seed=seed)
-        agent.reset(suite.context)
-        total = np.zeros(env.num_envs)
-        success = np.zeros(env.num_envs, dtype=bool)
-        reports_success = False
-        for _ in range(suite.horizon):
-            actions = agent.act(torch.as_tensor(obs, dtype=torch.float32))
-            obs, reward, terminated, truncated, info = env.step(actions.cpu().numpy())
-            total += reward
-            if "success" in info:
-                reports_success = True
-                success |= np.asarray(info["success"], dtype=bool)
-            if np.all(terminated | truncated):
-                break
-    finally:
-        # Vector envs may hold worker processes (Meta-World); release them now, not at garbage collection.
-        if hasattr(env, "close"):
-            env.close()
+    if env is None:
+        with suite_env(suite) as fresh:
+            return rollout_in_context(agent, suite, seed, fresh)
+    if env.num_envs != len(suite.task_index):
+        raise ValueError(f"env: {env.num_envs} envs for a suite of {len(suite.task_index)} episodes")
+    obs, _ = env.reset(seed=seed)
+    agent.reset(suite.context)
+    total = np.zeros(env.num_envs)
+    success = np.zeros(env.num_envs, dtype=bool)
+    reports_success = False
+    for _ in range(suite.horizon):
+        actions = agent.act(torch.as_tensor(obs, dtype=torch.float32))
+        obs, reward, terminated, truncated, info = env.step(actions.cpu().numpy())
+        total += reward
+        if "success" in info:
+            reports_success = True
+            success |= np.asarray(info["success"], dtype=bool)
+        if np.all(terminated | truncated):
+            break
     out = {"return": total}
     if reports_success:
         out["success"] = success.astype(np.float64)
@@ -66,18 +81,22 @@ def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0) -> dic
 
 
 def rollout_seeds(make_agent: Callable[[int], AgentLike], suite: EvalSuite, seeds: Sequence[int],
-                  suite_for_seed: Callable[[int], EvalSuite] | None = None) -> dict[str, np.ndarray]:
+                  suite_for_seed: Callable[[int], EvalSuite] | None = None, env: Any = None) -> dict[str, np.ndarray]:
     """Episodes for every seed (a fresh ``make_agent(seed)`` each), concatenated seed-major: [len(seeds) · B].
 
     Every seed is one more episode per context (new start state, new action samples). ``normalized_return``
     is added per seed, because a suite's ``normalize`` maps its own B episodes (per-task references).
     ``suite_for_seed(seed)``, when given, is the suite deployed at that seed (a context diagnostic drawn
-    from the seed, ``evaluation.diagnostics``); it must keep ``suite``'s tasks.
+    from the seed, ``evaluation.diagnostics``); it must keep ``suite``'s tasks. ``env``: as ``rollout_in_context``'s,
+    one env for every seed.
     """
+    if env is None:
+        with suite_env(suite) as fresh:
+            return rollout_seeds(make_agent, suite, seeds, suite_for_seed, fresh)
     episodes: dict[str, list[np.ndarray]] = {}
     for seed in seeds:
         deployed = suite if suite_for_seed is None else suite_for_seed(seed)
-        result = rollout_in_context(make_agent(seed), deployed, seed=seed)
+        result = rollout_in_context(make_agent(seed), deployed, seed=seed, env=env)
         if suite.normalize is not None:
             result["normalized_return"] = suite.normalize(result["return"])
         for name, values in result.items():
