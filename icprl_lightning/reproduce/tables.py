@@ -219,6 +219,13 @@ TABLES = {t.name: t for t in (
           evaluations=(Evaluation("", ("--greedy",)),),  # Gaussian means: sampling would repeat the greedy pass
           baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
           budget="≈ 10–25 min per fit on 1 core (data generation included); ICRG after its RewardGen"),
+    Table("metaworld_dit_epochs", "DIT on true rewards, Meta-World Reach T-PRL (metaworld_tprl_sac's data): 16 "
+          "policy epochs instead of the config's 4 (its rollouts every 4 epochs are the learning curve)",
+          (Run("DIT true rewards 20 epochs", ("configs/dit_metaworld.yaml", SAC_ORACLE),
+               (*REACH_TPRL_PAIRS, "--trainer.max_epochs", "20")),),
+          evaluations=(Evaluation("", ("--greedy",)),),
+          baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
+          budget="≈ 25–30 min per fit on 1 core of 2 busy ones (the data from metaworld_tprl_sac)"),
     Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
           evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS,
           eval_seeds=(0,), budget="≈ 2–4 min per fit on 1 core"),
