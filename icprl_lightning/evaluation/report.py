@@ -18,6 +18,7 @@ matplotlib backend of the caller.
 from __future__ import annotations
 
 import json
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -178,8 +179,20 @@ def diagnostics_markdown(payload: dict, metrics: list[tuple[str, str, int]], hea
     return lines + _markdown_tables(rows, columns, [(m, f"{t}, by context", d) for m, t, d in metrics], head)
 
 
+def _error_bars(payload: dict) -> str:
+    """What a figure's ± is: over training seeds when a run has several, else over held-out tasks."""
+    several = any(len(spec.partition(":")[2].split(",")) > 1 for spec in payload.get("runs", []))
+    return ("mean ± sem over training seeds (behavior, optimal: over held-out tasks)" if several
+            else "mean ± sem over held-out tasks")
+
+
+def _figure_title(text: str, fig_width_inches: float) -> str:
+    """``text`` wrapped to the figure's width (about 16 characters per inch at fontsize 9), so no line is cut."""
+    return textwrap.fill(text, width=max(40, int(16 * fig_width_inches)))
+
+
 def rollout_figure(payload: dict, path: str | Path) -> None:
-    """Bars per quality (return, and success where reported), one per method, ± sem over held-out tasks."""
+    """Bars per quality (return, and success where reported), one per method, ± sem (see ``_error_bars``)."""
     from matplotlib.figure import Figure
 
     results, names, qualities = _groups(payload)
@@ -195,7 +208,7 @@ def rollout_figure(payload: dict, path: str | Path) -> None:
         ax.set_xticks(np.arange(len(qualities)) + width * (len(results) - 1) / 2, qualities)
         ax.set_xlabel("context quality")
         ax.set_ylabel(f"{metric.replace('_', ' ')} on held-out tasks")
-    axes[0][0].set_title(f"{payload['title']}: mean ± sem over held-out tasks", fontsize=9)
+    fig.suptitle(_figure_title(f"{payload['title']}: {_error_bars(payload)}", fig.get_figwidth()), fontsize=9)
     axes[0][-1].legend(fontsize=7, bbox_to_anchor=(1.02, 1), loc="upper left")
     fig.savefig(path, dpi=120)
 
@@ -217,11 +230,13 @@ def diagnostics_figure(payload: dict, path: str | Path, metric: str) -> None:
             ax.bar(np.arange(len(names)) + i * width, [r.get(column, {}).get(metric, np.nan) for r in rows], width,
                    yerr=[r.get(column, {}).get(f"{metric}_sem", 0.0) or 0.0 for r in rows], capsize=2,
                    label=DIAGNOSTIC_NAMES[context])
-        ax.set_xticks(np.arange(len(names)) + width * (len(contexts) - 1) / 2, names, fontsize=8)
+        ax.set_xticks(np.arange(len(names)) + width * (len(contexts) - 1) / 2, names, fontsize=8,
+                      rotation=30 if len(names) > 2 else 0, ha="right" if len(names) > 2 else "center")
         ax.set_title(column, fontsize=9)
     axes[0][0].set_ylabel(metric.replace("_", " "))
     axes[0][-1].legend(fontsize=7, bbox_to_anchor=(1.02, 1), loc="upper left")
-    fig.suptitle(f"{payload['title']}: context diagnostics", fontsize=9)
+    fig.suptitle(_figure_title(f"{payload['title']}: context diagnostics, {_error_bars(payload)}", fig.get_figwidth()),
+                 fontsize=9)
     fig.savefig(path, dpi=120)
 
 
