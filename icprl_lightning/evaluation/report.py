@@ -154,9 +154,13 @@ DIAGNOSTIC_NAMES = {"own": "own context", "random_labels": "random labels", "fli
                     "other_task": "other task's context"}
 
 
+def _checkpoints_per_run(payload: dict) -> dict[str, int]:
+    """Run name -> its number of checkpoints (training seeds), from the ``--run NAME=CONFIG:CKPT,...`` specs."""
+    return {spec.partition("=")[0]: len(spec.partition(":")[2].split(",")) for spec in payload.get("runs", [])}
+
+
 def _seeds_note(payload: dict) -> str:
-    trained = {spec.partition("=")[0]: len(spec.partition(":")[2].split(",")) for spec in payload["runs"]}
-    several = {n: k for n, k in trained.items() if k > 1}
+    several = {n: k for n, k in _checkpoints_per_run(payload).items() if k > 1}
     seeds = (f"Training seeds: {', '.join(f'{n} {k}' for n, k in several.items())} (mean ± sem over training "
              "seeds of each seed's held-out mean); " if several else "One training seed per run; ")
     return seeds + f"episode seeds {payload['seeds']}, actions: {payload['actions']}."
@@ -181,7 +185,7 @@ def diagnostics_markdown(payload: dict, metrics: list[tuple[str, str, int]], hea
 
 def _error_bars(payload: dict) -> str:
     """What a figure's ± is: over training seeds when a run has several, else over held-out tasks."""
-    several = any(len(spec.partition(":")[2].split(",")) > 1 for spec in payload.get("runs", []))
+    several = any(k > 1 for k in _checkpoints_per_run(payload).values())
     return ("mean ± sem over training seeds (behavior, optimal: over held-out tasks)" if several
             else "mean ± sem over held-out tasks")
 
