@@ -56,7 +56,8 @@ METHOD_CASES = (
        ("DP2TModule", "context_kind", "nonsense"), ("RewardGenModule", "pair_source", "elsewhere")]
     + [(m, k, v) for m in ("DITModule", "ICRGModule")
        for k, v in (("gamma", -0.1), ("gamma", 1.5), ("eta", 0.0), ("eta", -1.0), ("max_weight", 0.0),
-                    ("value_epochs", -1), ("center_advantages", "yes"))]
+                    ("value_epochs", -1), ("center_advantages", "yes"),
+                    ("advantage", "q_plus_v"))]
 )
 
 

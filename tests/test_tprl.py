@@ -11,13 +11,14 @@ from factories import cli_data_args, darkroom_data  # noqa: E402
 from icprl_lightning import TrajectoryPreferenceContext, load_agent
 from icprl_lightning.cli import run_cli
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
-from icprl_lightning.methods.dit import DITModule, discounted_returns
+from icprl_lightning.methods.dit import DITModule, discounted_returns, swap_roles
 from icprl_lightning.methods.dpt import DP2TModule
 from icprl_lightning.methods.icrg import ICRGAgent, ICRGModule
 from icprl_lightning.methods.losses import (
     advantage_weighted_loss,
     dit_value_loss,
     standardized_advantages,
+    td_advantages,
     trajectory_preference_loss,
 )
 from icprl_lightning.methods.reward_gen import RewardGenModule
@@ -64,12 +65,20 @@ def test_advantage_weighted_loss_by_hand_with_clipping():
 def test_standardized_advantages_remove_the_offset_only_when_centred():
     q, v = torch.tensor([5.0, 6.0, 7.0, 8.0]), torch.zeros(4)  # Q̂ − V̂ = 5..8: offset 6.5, std √(5/3)
     std = math.sqrt(5 / 3)
-    centred = standardized_advantages(q, v)
+    centred = standardized_advantages(q - v)
     assert centred.tolist() == pytest.approx([(x - 6.5) / std for x in (5, 6, 7, 8)], rel=1e-5)
-    raw = standardized_advantages(q, v, center=False)
+    raw = standardized_advantages(q - v, center=False)
     assert raw.tolist() == pytest.approx([x / std for x in (5, 6, 7, 8)], rel=1e-5)
     # uncentred, every weight exp(Â/η) at η = 1 reaches a clip of 20 (Â ≥ 3.87 > ln 20): DIT would be cloning
     assert bool((torch.exp(raw) >= 20).all()) and not bool((torch.exp(centred) >= 20).any())
+
+
+def test_td_advantages_read_the_next_state_value_and_stop_at_the_horizon():
+    v = torch.tensor([[0.2, 0.5, 0.1]])
+    r = torch.tensor([[0.0, 1.0, 2.0]])
+    gamma = 0.9  # (1 − γ) r_h + γ V̂(s_{h+1}) − V̂(s_h), V̂ = 0 after the last step
+    expected = [0.9 * 0.5 - 0.2, 0.1 * 1.0 + 0.9 * 0.1 - 0.5, 0.1 * 2.0 - 0.1]
+    assert td_advantages(v, r, gamma)[0].tolist() == pytest.approx(expected, rel=1e-6)
 
 
 # ---- modules -------------------------------------------------------------------------------------
@@ -129,6 +138,20 @@ def test_dit_phases_update_only_their_networks(tprl_rewards, value_epochs, learn
                               next(iter(tprl_rewards.train_dataloader())))
     for name, m in moved.items():
         assert m == name.startswith(learns), name
+
+
+def test_dit_td_advantages_come_from_v_alone_and_train_only_the_policy(tprl_rewards):
+    torch.manual_seed(0)
+    model = DITModule(**ENV, **SIZES, value_epochs=0, advantage="td")
+    batch = next(iter(tprl_rewards.train_dataloader()))
+    context, scored = swap_roles(*model.labeled_trajectories(batch))
+    with torch.no_grad():
+        expected = td_advantages(model.v_value(context, scored.states), scored.rewards, model.hparams.gamma)
+        model.q_value.apply(lambda m: [p.add_(1.0) for p in m.parameters(recurse=False)])  # Q̂ must not matter
+        torch.testing.assert_close(model.advantages(context, scored), expected)
+    moved = _step_and_compare(model, batch)
+    for name, m in moved.items():
+        assert m == name.startswith("policy"), name
 
 
 def test_dit_on_continuous_actions_weights_the_gaussian_mean_likelihood():

@@ -23,6 +23,12 @@ deviations clips every weight and DIT becomes behavior cloning. Logged in the po
 ``advantage_offset`` (the raw batch mean of Q̂ − V̂ in units of its std: what centring removes),
 ``clipped_fraction``, ``mean_weight`` and ``weight_std`` (the spread of exp(Â/η)).
 
+``advantage: td`` replaces the paper's Q̂ − V̂ by V̂'s one-step TD error (1 − γ) r_h + γ V̂(s_{h+1}) − V̂(s_h)
+(``losses.td_advantages``; Q̂ is still fitted, unused). On DarkRoom the paper's form does not tell the
+behavior's good actions from its bad ones (AUC ≈ 0.5, ``scripts/dit_weight_quality.py``): Q̂ and V̂ are two
+regressions of the same noisy return whose difference is mostly their errors, while the TD error sees the
+action's effect in the next state.
+
 This module is DIT on true rewards, the reward-supervised baseline (``reward_trajectory`` data); ICRG
 (``methods/icrg.py``) is the same on rewards labeled by RewardGen.
 """
@@ -34,9 +40,17 @@ from torch import Tensor
 
 from icprl_lightning.contexts import RewardTrajectoryContext
 from icprl_lightning.methods.base import InContextModule
-from icprl_lightning.methods.losses import advantage_weighted_loss, dit_value_loss, standardized_advantages
+from icprl_lightning.methods.losses import (
+    advantage_weighted_loss,
+    dit_value_loss,
+    standardized_advantages,
+    td_advantages,
+)
 from icprl_lightning.models.estimator import InContextEstimator
 from icprl_lightning.validation import check_choice, check_int, check_interval, check_positive
+
+# Â = Q̂ − V̂ (paper eq. dit-advantage), or "td": r_h + γ V̂(s_{h+1}) − V̂(s_h) (losses.td_advantages)
+ADVANTAGES = ("q_minus_v", "td")
 
 
 def discounted_returns(rewards: Tensor, gamma: float) -> Tensor:
@@ -61,13 +75,14 @@ class DITModule(InContextModule):
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, gamma: float = 0.95,
                  eta: float = 1.0, max_weight: float = 20.0, value_epochs: int = 2, n_layer: int = 3,
                  n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, center_advantages: bool = True) -> None:
+                 weight_decay: float = 0.0, center_advantages: bool = True, advantage: str = "q_minus_v") -> None:
         owner = type(self).__name__
         check_interval(owner, "gamma", gamma, 0.0, 1.0)
         check_positive(owner, "eta", eta)
         check_positive(owner, "max_weight", max_weight)
         check_int(owner, "value_epochs", value_epochs, 0)
         check_choice(owner, "center_advantages", center_advantages, (True, False))
+        check_choice(owner, "advantage", advantage, ADVANTAGES)
         super().__init__("reward_trajectory", state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
                          dropout, lr, weight_decay)
         estimator = dict(context_kind="reward_trajectory", state_dim=state_dim, action_spec=self.action_spec,
@@ -96,6 +111,13 @@ class DITModule(InContextModule):
         """Q̂(s_h, a_h | D) and V̂(s_h | D) for every step of ``scored`` -> (B, H) each."""
         return self.q_value(context, scored.states, scored.actions), self.v_value(context, scored.states)
 
+    def advantages(self, context: RewardTrajectoryContext, scored: RewardTrajectoryContext) -> Tensor:
+        """Â for every step of ``scored`` before normalization -> (B, H): Q̂ − V̂, or V̂'s one-step TD error."""
+        if self.hparams.advantage == "td":
+            return td_advantages(self.v_value(context, scored.states), scored.rewards, self.hparams.gamma)
+        q, v = self.values(context, scored)
+        return q - v
+
     def log_likelihood(self, context: RewardTrajectoryContext, scored: RewardTrajectoryContext) -> Tensor:
         """log T^R(a_h | s_h, D) for each step of ``scored`` -> (B, H); −‖a − μ‖² (Gaussian mean) if continuous."""
         t = context.states.shape[1]
@@ -113,10 +135,10 @@ class DITModule(InContextModule):
             loss = dit_value_loss(q, v, (1 - hp.gamma) * discounted_returns(scored.rewards, hp.gamma))
             return loss, {"value_loss": loss, "advantage_std": (q - v).detach().std()}
         with torch.no_grad():
-            q, v = self.values(context, scored)
-            advantage = standardized_advantages(q, v, center=hp.center_advantages)
+            raw = self.advantages(context, scored)
+            advantage = standardized_advantages(raw, center=hp.center_advantages)
         loss = advantage_weighted_loss(self.log_likelihood(context, scored), advantage, hp.eta, hp.max_weight)
         weight = torch.exp(advantage / hp.eta).clamp(max=hp.max_weight)
-        offset = (q - v).mean() / ((q - v).std() + 1e-6)
+        offset = raw.mean() / (raw.std() + 1e-6)
         return loss, {"policy_loss": loss, "mean_weight": weight.mean(), "weight_std": weight.std(),
                       "clipped_fraction": (weight >= hp.max_weight).float().mean(), "advantage_offset": offset}

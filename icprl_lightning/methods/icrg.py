@@ -125,9 +125,9 @@ class ICRGModule(DITModule):
                  cross_fit_hparams: list[dict[str, Any]] | None = None, gamma: float = 0.95, eta: float = 1.0,
                  max_weight: float = 20.0, value_epochs: int = 2,
                  n_layer: int = 3, n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, center_advantages: bool = True) -> None:
+                 weight_decay: float = 0.0, center_advantages: bool = True, advantage: str = "q_minus_v") -> None:
         super().__init__(state_dim, action_dim, discrete, max_context, gamma, eta, max_weight, value_epochs, n_layer,
-                         n_embd, n_head, dropout, lr, weight_decay, center_advantages)
+                         n_embd, n_head, dropout, lr, weight_decay, center_advantages, advantage)
         weights = None
         sizes = {"state_dim": state_dim, "action_dim": action_dim, "discrete": discrete}
         if reward_gen_hparams is None:

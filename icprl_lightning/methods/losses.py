@@ -13,9 +13,11 @@
   −log σ(Σ_h R_ψ(s⁺_h, a⁺_h | D^T) − Σ_h R_ψ(s⁻_h, a⁻_h | D^T)), written for a labeled pair (ξ_a, ξ_b, y).
 * ``dit_value_loss`` — DIT's in-context Q̂ and V̂, paper eq. (dit-loss): (Q̂ − G)² + (V̂ − G)² on discounted
   returns G (the paper's second term lacks its square; the regression is meant).
-* ``standardized_advantages`` — DIT's Â = Q̂ − V̂ (paper eq. dit-advantage), centred and divided by its batch
-  standard deviation, so that η means the same for any reward scale and an offset between Q̂ and V̂ does
-  not push every weight onto its clip.
+* ``td_advantages`` — an alternative to the paper's Â = Q̂ − V̂ (eq. dit-advantage): the one-step TD error
+  r_h + γ V̂(s_{h+1}) − V̂(s_h) of the same V̂, which reads the action's effect off the next state instead of
+  asking a second network to resolve it (AWR's estimator, at one step).
+* ``standardized_advantages`` — DIT's Â, centred and divided by its batch standard deviation, so that η
+  means the same for any reward scale and an offset between Q̂ and V̂ does not push every weight onto its clip.
 * ``advantage_weighted_loss`` — DIT's policy, paper eq. (dit-optimization): −exp(Â/η) log T^R(a | s, D),
   the weight clipped at ``max_weight`` (as in AWR/IQL: one large advantage must not dominate a batch).
 """
@@ -62,9 +64,16 @@ def dit_value_loss(q_values: Tensor, v_values: Tensor, returns: Tensor) -> Tenso
     return (q_values - returns).pow(2).mean() + (v_values - returns).pow(2).mean()
 
 
-def standardized_advantages(q_values: Tensor, v_values: Tensor, center: bool = True) -> Tensor:
-    """(Q̂ − V̂ − mean) / std over the whole batch (the mean only with ``center``); no gradient flows."""
-    advantage = (q_values - v_values).detach()
+def td_advantages(v_values: Tensor, rewards: Tensor, gamma: float) -> Tensor:
+    """(1 − γ) r_h + γ V̂(s_{h+1}) − V̂(s_h) along the last axis, (..., H) -> (..., H), V̂ = 0 after the last step
+    (the returns are truncated there). V̂ is in the value loss's (1 − γ)-scaled units, hence the (1 − γ) r_h."""
+    following = torch.cat([v_values[..., 1:], torch.zeros_like(v_values[..., :1])], dim=-1)
+    return ((1 - gamma) * rewards + gamma * following - v_values).detach()
+
+
+def standardized_advantages(advantage: Tensor, center: bool = True) -> Tensor:
+    """(Â − mean) / std over the whole batch (the mean only with ``center``); no gradient flows."""
+    advantage = advantage.detach()
     if center:
         advantage = advantage - advantage.mean()
     return advantage / (advantage.std() + 1e-6)

@@ -84,8 +84,8 @@ def _dit_sweep_runs() -> tuple[Run, ...]:
 # DIT's η and γ picked by darkroom_dit_sweep (DIT on true rewards), for DIT and ICRG alike
 DIT_PICK = ("--model.init_args.eta", "1.0", "--model.init_args.gamma", "0.95")
 DIT_G099 = ("--model.init_args.eta", "1.0", "--model.init_args.gamma", "0.99")
-# darkroom_tprl trains DIT 2 value + 2 policy epochs of 300 steps; this is 4 + 6
-DIT_LONG = ("--model.init_args.value_epochs", "4", "--trainer.max_epochs", "10")
+# Â as V̂'s one-step TD error instead of Q̂ − V̂ (methods/dit.py; scripts/dit_weight_quality.py says why), at the pick
+DIT_TD = (*DIT_PICK, "--model.init_args.advantage", "td")
 FOLDS = 2
 REWARD_GEN = "configs/reward_gen_darkroom.yaml"
 
@@ -107,6 +107,11 @@ def _tprl_runs() -> tuple[Run, ...]:
             # γ = 0.99: the sweep's best DIT on true rewards greedily; ICRG and its oracle at that γ too
             Run("ICRG in-sample labels g0.99", icrg, (*TPRL_SCALE, *DIT_G099), needs=(stage1,)),
             Run("DIT true rewards g0.99", ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, *DIT_G099)),
+            # TD advantages: DIT's oracle and both ICRG label sources
+            Run("ICRG in-sample labels TD", icrg, (*TPRL_SCALE, *DIT_TD), needs=(stage1,)),
+            Run("ICRG cross-fitted labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
+                needs=(stage1, ("--model.init_args.cross_fit_checkpoints", folds))),
+            Run("DIT true rewards TD", ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, *DIT_TD)),
             Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
 
 
@@ -205,11 +210,6 @@ TABLES = {t.name: t for t in (
     Table("darkroom_dit_sweep", "DIT on true rewards, DarkRoom T-PRL trajectories (600 pairs per goal): η and γ",
           _dit_sweep_runs(), contexts=("own",), eval_seeds=(0, 1),
           budget="≈ 11 min per fit on 1 idle core; 5 fits with --seeds 0"),
-    Table("darkroom_dit_long", "DIT on true rewards, DarkRoom T-PRL (600 pairs per goal), γ = 0.99: 2× the value "
-          "steps and 3× the policy steps of darkroom_tprl's (rollouts every 2 epochs are the learning curve)",
-          (Run("DIT true rewards g0.99 long", ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, *DIT_G099, *DIT_LONG)),),
-          contexts=("own", "other_task"),
-          budget="≈ 15 min per fit on 1 core (3,000 steps; the data from darkroom_tprl)"),
     Table("darkroom_tprl", "DarkRoom T-PRL (600 pairs per goal): ICRG's stages against their oracles, DP²T",
           _tprl_runs(),
           budget="≈ 3–8 min per fit with 3–4 jobs on the 2 cores (3 December); 8 runs × seeds, each ICRG after "

@@ -1,0 +1,127 @@
+"""What does DIT's weighted clone imitate on DarkRoom? (paper, appendix "Decision Importance Transformer", eqs.
+dit-advantage and dit-optimization: the policy clones the behavior's actions with weights exp(Â/η).)
+
+    python scripts/dit_weight_quality.py \
+        --ckpt runs/reproduce/darkroom_tprl/runs/DIT_true_rewards_g0.99-seed0/version_0/checkpoints/last.ckpt \
+        [--ckpt ...seed1...] [--json PATH]
+
+An advantage-weighted clone can only beat the behavior if its weights put more mass on good actions than
+the behavior does. On DarkRoom an action is *good* when it moves the agent closer to the goal (Manhattan
+distance), or stays on it. On the validation trajectories of the training goals (never trained on),
+each trajectory of a pair scored with the other as context, exactly as in training (``swap_roles``),
+this prints per context quality:
+
+* ``good_fraction``: the behavior's share of good actions (what plain behavior cloning imitates);
+* ``weighted_good_fraction``: Σ w·good / Σ w with w = min(exp(Â/η), max_weight) and Â standardized over
+  all scored steps as in training (batch-wise there): the share of good actions in DIT's weighted target;
+* ``auc``: P(Â of a good action > Â of a bad one), 0.5 = the advantages do not tell them apart;
+* the same two with ``td_``: Â = V̂'s one-step TD error (``advantage: td``, ``losses.td_advantages``) from the
+  checkpoint's own V̂, whichever form it was trained with.
+
+Each checkpoint reads the data of its own run (``config.yaml`` beside ``checkpoints/``), so the
+``trajectories_per_task`` override of a reproduce table is honoured. Several ``--ckpt`` are training
+seeds; each measure is reported as mean ± sem over them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from icprl_lightning.checkpoints import load_module
+from icprl_lightning.data.batches import to_tensor
+from icprl_lightning.data.config import datamodule_from_config
+from icprl_lightning.families.base import QUALITIES
+from icprl_lightning.families.darkroom import DarkRoomFamily
+from icprl_lightning.families.darkroom.env import step_reward, transition
+from icprl_lightning.methods.dit import DITModule, swap_roles
+from icprl_lightning.methods.losses import standardized_advantages, td_advantages
+from icprl_lightning.metrics import mean_sem_or_none
+
+FIELDS = ("states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b")
+
+
+def good_actions(states: np.ndarray, actions: np.ndarray, goals: np.ndarray, size: int,
+                 rewards: np.ndarray) -> np.ndarray:
+    """[N, H] bool: the action brings the agent closer to its goal (or keeps it there). ``rewards`` checks the
+    reconstruction: the stored reward must be 1 exactly when the move lands on the goal."""
+    cells = states.astype(np.int64)
+    nxt = transition(cells, actions.astype(np.int64), size)
+    if not np.array_equal(step_reward(nxt, goals[:, None]), rewards):
+        raise ValueError("the stored rewards do not match DarkRoom's transitions for these goals")
+    before = np.abs(cells - goals[:, None]).sum(-1)
+    after = np.abs(nxt - goals[:, None]).sum(-1)
+    return (after < before) | ((before == 0) & (after == 0))
+
+
+def auc(scores: np.ndarray, positive: np.ndarray) -> float:
+    """P(score of a positive > score of a negative), ties counted half (Mann–Whitney)."""
+    ranks = np.empty(len(scores))
+    order = np.argsort(scores, kind="stable")
+    ranks[order] = np.arange(1, len(scores) + 1)
+    for value in np.unique(scores[np.diff(np.sort(scores), prepend=np.nan) == 0]):  # average tied ranks
+        tied = scores == value
+        ranks[tied] = ranks[tied].mean()
+    n_pos, n_neg = positive.sum(), (~positive).sum()
+    return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
+
+
+def measure(checkpoint: Path) -> dict[str, dict[str, float]]:
+    module = load_module(checkpoint).eval()
+    if not isinstance(module, DITModule):
+        raise ValueError(f"{checkpoint} is a {type(module).__name__}, not a DIT checkpoint")
+    dm = datamodule_from_config(checkpoint.parent.parent / "config.yaml")
+    if not isinstance(dm.family, DarkRoomFamily):
+        raise ValueError(f"{checkpoint}: this measure is DarkRoom's (good = closer to the goal); "
+                         f"the run's family is {type(dm.family).__name__}")
+    dm.prepare_data()
+    val = dm.load()["val"]
+    batch = {k: to_tensor(np.asarray(val[k])) for k in FIELDS}
+    hp = module.hparams
+    with torch.no_grad():
+        context, scored = swap_roles(*module.labeled_trajectories(batch))  # rows [ξ_b; ξ_a]
+        q, v = module.values(context, scored)
+    forms = {"": q - v, "td_": td_advantages(v, scored.rewards, hp.gamma)}  # the paper's Q̂ − V̂; V̂'s TD error
+    goals = dm.family.train_goals[np.asarray(val["task_index"])].astype(np.int64)
+    good = np.concatenate([good_actions(np.asarray(val[f"states_{s}"]), np.asarray(val[f"actions_{s}"]), goals,
+                                        dm.family.size, np.asarray(val[f"rewards_{s}"])) for s in "ba"])
+    quality = np.tile(np.asarray(val["quality"]), 2)
+    out = {name: {"good_fraction": float(good[quality == i].mean()), "steps": int(good[quality == i].size)}
+           for i, name in enumerate(QUALITIES)}
+    for prefix, raw in forms.items():
+        advantage = standardized_advantages(raw, center=hp.center_advantages)
+        weight = torch.exp(advantage / hp.eta).clamp(max=hp.max_weight).numpy()
+        for i, name in enumerate(QUALITIES):
+            rows = quality == i
+            g, w, a = good[rows].ravel(), weight[rows].ravel(), advantage.numpy()[rows].ravel()
+            out[name][f"{prefix}weighted_good_fraction"] = float((w * g).sum() / w.sum())
+            out[name][f"{prefix}auc"] = auc(a, g)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--ckpt", type=Path, action="append", required=True, help="a DIT checkpoint (repeat: seeds)")
+    parser.add_argument("--json", type=Path, help="also write the per-checkpoint measures and their summary")
+    args = parser.parse_args()
+    per_ckpt = {str(c): measure(c) for c in args.ckpt}
+    measures = ("good_fraction", "weighted_good_fraction", "auc", "td_weighted_good_fraction", "td_auc")
+    summary = {q: {m: mean_sem_or_none([r[q][m] for r in per_ckpt.values()]) for m in measures} for q in QUALITIES}
+    print(f"| measure ({len(per_ckpt)} checkpoints, mean ± sem) | " + " | ".join(QUALITIES) + " |")
+    print("|---|" + "---|" * len(QUALITIES))
+    for m in measures:
+        cells = []
+        for q in QUALITIES:
+            mean, sem = summary[q][m]
+            cells.append(f"{mean:.3f}" + (f" ± {sem:.3f}" if sem is not None else ""))
+        print(f"| {m} | " + " | ".join(cells) + " |")
+    if args.json:
+        args.json.write_text(json.dumps({"checkpoints": per_ckpt, "summary": summary}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
