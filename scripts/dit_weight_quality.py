@@ -2,8 +2,10 @@
 dit-advantage and dit-optimization: the policy clones the behavior's actions with weights exp(Â/η).)
 
     python scripts/dit_weight_quality.py \
-        --ckpt runs/reproduce/darkroom_tprl/runs/DIT_true_rewards_g0.99-seed0/version_0/checkpoints/last.ckpt \
+        --ckpt runs/reproduce/darkroom_tprl/runs/DIT_true_rewards-seed0/version_0/checkpoints/last.ckpt \
         [--ckpt ...seed1...] [--json PATH]
+
+A DIT checkpoint (true rewards) or an ICRG one (rewards labeled by its RewardGen, as in its training).
 
 An advantage-weighted clone can only beat the behavior if its weights put more mass on good actions than
 the behavior does. On DarkRoom an action is *good* when it moves the agent closer to the goal (Manhattan
@@ -33,7 +35,7 @@ import numpy as np
 import torch
 
 from icprl_lightning.checkpoints import load_module
-from icprl_lightning.data.batches import to_tensor
+from icprl_lightning.data.batches import ContextBatches
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.families.darkroom import DarkRoomFamily
@@ -42,16 +44,14 @@ from icprl_lightning.methods.dit import DITModule, swap_roles
 from icprl_lightning.methods.losses import standardized_advantages, td_advantages
 from icprl_lightning.metrics import mean_sem_or_none
 
-FIELDS = ("states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b")
-
 
 def good_actions(states: np.ndarray, actions: np.ndarray, goals: np.ndarray, size: int,
-                 rewards: np.ndarray) -> np.ndarray:
-    """[N, H] bool: the action brings the agent closer to its goal (or keeps it there). ``rewards`` checks the
-    reconstruction: the stored reward must be 1 exactly when the move lands on the goal."""
+                 rewards: np.ndarray | None = None) -> np.ndarray:
+    """[N, H] bool: the action brings the agent closer to its goal (or keeps it there). ``rewards`` (when the data
+    hold them) check the reconstruction: the stored reward must be 1 exactly when the move lands on the goal."""
     cells = states.astype(np.int64)
     nxt = transition(cells, actions.astype(np.int64), size)
-    if not np.array_equal(step_reward(nxt, goals[:, None]), rewards):
+    if rewards is not None and not np.array_equal(step_reward(nxt, goals[:, None]), np.asarray(rewards)):
         raise ValueError("the stored rewards do not match DarkRoom's transitions for these goals")
     before = np.abs(cells - goals[:, None]).sum(-1)
     after = np.abs(nxt - goals[:, None]).sum(-1)
@@ -70,25 +70,34 @@ def auc(scores: np.ndarray, positive: np.ndarray) -> float:
     return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
 
 
+def validation_batch(dm) -> tuple[dict[str, torch.Tensor], dict[str, np.ndarray]]:
+    """Every validation row as one batch, as the run's loaders build them (ICRG: another pair of the task
+    conditions RewardGen, drawn with a fixed seed), and the stored arrays."""
+    val = dm.load()["val"]
+    data = ContextBatches(val, dm.setting.batch_fields(), dm.trajectories_per_task[1], dm.pairs, False,
+                          dm.setting.pair_fields, tasks=True)
+    torch.manual_seed(0)
+    return data[np.arange(len(data))], val
+
+
 def measure(checkpoint: Path) -> dict[str, dict[str, float]]:
     module = load_module(checkpoint).eval()
     if not isinstance(module, DITModule):
-        raise ValueError(f"{checkpoint} is a {type(module).__name__}, not a DIT checkpoint")
+        raise ValueError(f"{checkpoint} is a {type(module).__name__}, not a DIT or ICRG checkpoint")
     dm = datamodule_from_config(checkpoint.parent.parent / "config.yaml")
     if not isinstance(dm.family, DarkRoomFamily):
         raise ValueError(f"{checkpoint}: this measure is DarkRoom's (good = closer to the goal); "
                          f"the run's family is {type(dm.family).__name__}")
     dm.prepare_data()
-    val = dm.load()["val"]
-    batch = {k: to_tensor(np.asarray(val[k])) for k in FIELDS}
+    batch, val = validation_batch(dm)
     hp = module.hparams
-    with torch.no_grad():
+    with torch.no_grad():  # ICRG: the rewards are RewardGen's labels
         context, scored = swap_roles(*module.labeled_trajectories(batch))  # rows [ξ_b; ξ_a]
         q, v = module.values(context, scored)
     forms = {"": q - v, "td_": td_advantages(v, scored.rewards, hp.gamma)}  # the paper's Q̂ − V̂; V̂'s TD error
     goals = dm.family.train_goals[np.asarray(val["task_index"])].astype(np.int64)
     good = np.concatenate([good_actions(np.asarray(val[f"states_{s}"]), np.asarray(val[f"actions_{s}"]), goals,
-                                        dm.family.size, np.asarray(val[f"rewards_{s}"])) for s in "ba"])
+                                        dm.family.size, val.get(f"rewards_{s}")) for s in "ba"])
     quality = np.tile(np.asarray(val["quality"]), 2)
     out = {name: {"good_fraction": float(good[quality == i].mean()), "steps": int(good[quality == i].size)}
            for i, name in enumerate(QUALITIES)}
