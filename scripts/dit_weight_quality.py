@@ -58,15 +58,17 @@ def good_actions(states: np.ndarray, actions: np.ndarray, goals: np.ndarray, siz
     return (after < before) | ((before == 0) & (after == 0))
 
 
-def auc(scores: np.ndarray, positive: np.ndarray) -> float:
-    """P(score of a positive > score of a negative), ties counted half (Mann–Whitney)."""
+def auc(scores: np.ndarray, positive: np.ndarray) -> float | None:
+    """P(score of a positive > score of a negative), ties counted half (Mann–Whitney); None without both kinds."""
+    n_pos, n_neg = positive.sum(), (~positive).sum()
+    if n_pos == 0 or n_neg == 0:
+        return None
     ranks = np.empty(len(scores))
     order = np.argsort(scores, kind="stable")
     ranks[order] = np.arange(1, len(scores) + 1)
     for value in np.unique(scores[np.diff(np.sort(scores), prepend=np.nan) == 0]):  # average tied ranks
         tied = scores == value
         ranks[tied] = ranks[tied].mean()
-    n_pos, n_neg = positive.sum(), (~positive).sum()
     return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
 
 
@@ -99,12 +101,13 @@ def measure(checkpoint: Path) -> dict[str, dict[str, float]]:
     good = np.concatenate([good_actions(np.asarray(val[f"states_{s}"]), np.asarray(val[f"actions_{s}"]), goals,
                                         dm.family.size, val.get(f"rewards_{s}")) for s in "ba"])
     quality = np.tile(np.asarray(val["quality"]), 2)
+    present = [(i, name) for i, name in enumerate(QUALITIES) if (quality == i).any()]
     out = {name: {"good_fraction": float(good[quality == i].mean()), "steps": int(good[quality == i].size)}
-           for i, name in enumerate(QUALITIES)}
+           for i, name in present}
     for prefix, raw in forms.items():
         advantage = standardized_advantages(raw, center=hp.center_advantages)
         weight = torch.exp(advantage / hp.eta).clamp(max=hp.max_weight).numpy()
-        for i, name in enumerate(QUALITIES):
+        for i, name in present:
             rows = quality == i
             g, w, a = good[rows].ravel(), weight[rows].ravel(), advantage.numpy()[rows].ravel()
             out[name][f"{prefix}weighted_good_fraction"] = float((w * g).sum() / w.sum())
@@ -119,14 +122,18 @@ def main() -> None:
     args = parser.parse_args()
     per_ckpt = {str(c): measure(c) for c in args.ckpt}
     measures = ("good_fraction", "weighted_good_fraction", "auc", "td_weighted_good_fraction", "td_auc")
-    summary = {q: {m: mean_sem_or_none([r[q][m] for r in per_ckpt.values()]) for m in measures} for q in QUALITIES}
+    summary = {}
+    for q in QUALITIES:
+        for m in measures:
+            values = [r[q][m] for r in per_ckpt.values() if r.get(q, {}).get(m) is not None]
+            summary.setdefault(q, {})[m] = mean_sem_or_none(values) if values else (None, None)
     print(f"| measure ({len(per_ckpt)} checkpoints, mean ± sem) | " + " | ".join(QUALITIES) + " |")
     print("|---|" + "---|" * len(QUALITIES))
     for m in measures:
         cells = []
         for q in QUALITIES:
             mean, sem = summary[q][m]
-            cells.append(f"{mean:.3f}" + (f" ± {sem:.3f}" if sem is not None else ""))
+            cells.append("–" if mean is None else f"{mean:.3f}" + (f" ± {sem:.3f}" if sem is not None else ""))
         print(f"| {m} | " + " | ".join(cells) + " |")
     if args.json:
         args.json.write_text(json.dumps({"checkpoints": per_ckpt, "summary": summary}, indent=2) + "\n")
