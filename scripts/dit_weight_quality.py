@@ -17,8 +17,10 @@ this prints per context quality:
 * ``weighted_good_fraction``: Σ w·good / Σ w with w = min(exp(Â/η), max_weight) and Â standardized over
   all scored steps as in training (batch-wise there): the share of good actions in DIT's weighted target;
 * ``auc``: P(Â of a good action > Â of a bad one), 0.5 = the advantages do not tell them apart;
-* the same two with ``td_``: Â = V̂'s one-step TD error (``advantage: td``, ``losses.td_advantages``) from the
-  checkpoint's own V̂, whichever form it was trained with.
+* ``policy_good_mass``: the trained policy's probability of a good action at the same states: what the clone
+  achieved, against the target it was given;
+* the weighted fraction and the AUC with ``td_``: Â = V̂'s one-step TD error (``advantage: td``,
+  ``losses.td_advantages``) from the checkpoint's own V̂, whichever form it was trained with.
 
 Each checkpoint reads the data of its own run (``config.yaml`` beside ``checkpoints/``), so the
 ``trajectories_per_task`` override of a reproduce table is honoured. Several ``--ckpt`` are training
@@ -96,13 +98,20 @@ def measure(checkpoint: Path) -> dict[str, dict[str, float]]:
     with torch.no_grad():  # ICRG: the rewards are RewardGen's labels
         context, scored = swap_roles(*module.labeled_trajectories(batch))  # rows [ξ_b; ξ_a]
         q, v = module.values(context, scored)
+        visible = torch.full((scored.states.shape[1],), context.states.shape[1])
+        policy = module.policy(context, scored.states, visible).softmax(-1).numpy()  # T^R(· | s_h, D), (2N, H, A)
     forms = {"": q - v, "td_": td_advantages(v, scored.rewards, hp.gamma)}  # the paper's Q̂ − V̂; V̂'s TD error
     goals = dm.family.train_goals[np.asarray(val["task_index"])].astype(np.int64)
     good = np.concatenate([good_actions(np.asarray(val[f"states_{s}"]), np.asarray(val[f"actions_{s}"]), goals,
                                         dm.family.size, val.get(f"rewards_{s}")) for s in "ba"])
+    states = np.concatenate([np.asarray(val[f"states_{s}"]) for s in "ba"])
+    every = np.stack([good_actions(states, np.full(states.shape[:2], a), np.tile(goals, (2, 1)), dm.family.size)
+                      for a in range(policy.shape[-1])], -1)  # (2N, H, A): which actions are good at each state
+    policy_good = (policy * every).sum(-1)
     quality = np.tile(np.asarray(val["quality"]), 2)
     present = [(i, name) for i, name in enumerate(QUALITIES) if (quality == i).any()]
-    out = {name: {"good_fraction": float(good[quality == i].mean()), "steps": int(good[quality == i].size)}
+    out = {name: {"good_fraction": float(good[quality == i].mean()),
+                  "policy_good_mass": float(policy_good[quality == i].mean()), "steps": int(good[quality == i].size)}
            for i, name in present}
     for prefix, raw in forms.items():
         advantage = standardized_advantages(raw, center=hp.center_advantages)
@@ -121,7 +130,8 @@ def main() -> None:
     parser.add_argument("--json", type=Path, help="also write the per-checkpoint measures and their summary")
     args = parser.parse_args()
     per_ckpt = {str(c): measure(c) for c in args.ckpt}
-    measures = ("good_fraction", "weighted_good_fraction", "auc", "td_weighted_good_fraction", "td_auc")
+    measures = ("good_fraction", "weighted_good_fraction", "td_weighted_good_fraction", "policy_good_mass", "auc",
+                "td_auc")
     summary = {}
     for q in QUALITIES:
         for m in measures:

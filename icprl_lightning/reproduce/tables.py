@@ -210,6 +210,12 @@ TABLES = {t.name: t for t in (
     Table("darkroom_dit_sweep", "DIT on true rewards, DarkRoom T-PRL trajectories (600 pairs per goal): η and γ",
           _dit_sweep_runs(), contexts=("own",), eval_seeds=(0, 1),
           budget="≈ 11 min per fit on 1 idle core; 5 fits with --seeds 0"),
+    Table("darkroom_dit_steps", "DIT on true rewards with TD advantages, DarkRoom T-PRL (600 pairs per goal): 3× "
+          "darkroom_tprl's policy steps (2 value + 6 policy epochs; rollouts every 2 epochs are the learning curve)",
+          (Run("DIT true rewards TD 6 policy epochs", ("configs/dit_darkroom.yaml",),
+               (*TPRL_SCALE, *DIT_TD, "--trainer.max_epochs", "8")),),
+          contexts=("own", "other_task"),
+          budget="≈ 12 min per fit on 1 idle core (2,400 steps; the data from darkroom_tprl)"),
     Table("darkroom_tprl", "DarkRoom T-PRL (600 pairs per goal): ICRG's stages against their oracles, DP²T",
           _tprl_runs(),
           budget="≈ 3–8 min per fit with 3–4 jobs on the 2 cores (3 December); 8 runs × seeds, each ICRG after "
