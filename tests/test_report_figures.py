@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from icprl_lightning.evaluation.report import _error_bars, _figure_title, rollout_figure
+from icprl_lightning.evaluation.report import _error_bars, figure_title, rollout_figure
 
 
 def _payload(checkpoints_per_run: int) -> dict:
@@ -19,7 +19,7 @@ def test_error_bars_are_over_training_seeds_only_when_a_run_has_several():
 
 
 def test_a_long_title_is_wrapped_to_the_figure_width():
-    lines = _figure_title("word " * 100, fig_width_inches=5.0).splitlines()
+    lines = figure_title("word " * 100, fig_width_inches=5.0).splitlines()
     assert len(lines) > 1 and all(len(line) <= 80 for line in lines)
 
 

@@ -190,7 +190,7 @@ def _error_bars(payload: dict) -> str:
             else "mean ± sem over held-out tasks")
 
 
-def _figure_title(text: str, fig_width_inches: float) -> str:
+def figure_title(text: str, fig_width_inches: float) -> str:
     """``text`` wrapped to the figure's width (about 16 characters per inch at fontsize 9), so no line is cut."""
     return textwrap.fill(text, width=max(40, int(16 * fig_width_inches)))
 
@@ -212,7 +212,7 @@ def rollout_figure(payload: dict, path: str | Path) -> None:
         ax.set_xticks(np.arange(len(qualities)) + width * (len(results) - 1) / 2, qualities)
         ax.set_xlabel("context quality")
         ax.set_ylabel(f"{metric.replace('_', ' ')} on held-out tasks")
-    fig.suptitle(_figure_title(f"{payload['title']}: {_error_bars(payload)}", fig.get_figwidth()), fontsize=9)
+    fig.suptitle(figure_title(f"{payload['title']}: {_error_bars(payload)}", fig.get_figwidth()), fontsize=9)
     axes[0][-1].legend(fontsize=7, bbox_to_anchor=(1.02, 1), loc="upper left")
     fig.savefig(path, dpi=120)
 
@@ -239,7 +239,7 @@ def diagnostics_figure(payload: dict, path: str | Path, metric: str) -> None:
         ax.set_title(column, fontsize=9)
     axes[0][0].set_ylabel(metric.replace("_", " "))
     axes[0][-1].legend(fontsize=7, bbox_to_anchor=(1.02, 1), loc="upper left")
-    fig.suptitle(_figure_title(f"{payload['title']}: context diagnostics, {_error_bars(payload)}", fig.get_figwidth()),
+    fig.suptitle(figure_title(f"{payload['title']}: context diagnostics, {_error_bars(payload)}", fig.get_figwidth()),
                  fontsize=9)
     fig.savefig(path, dpi=120)
 
@@ -277,7 +277,7 @@ def regret_figure(payload: dict, path: str | Path) -> None:
         ax.grid(alpha=0.3)
     axes[0, 0].set_ylabel(f"weak regret (mean ± sem, {payload['n_eval_problems']} problems)")
     axes[0, 0].legend()
-    fig.suptitle(payload["title"], fontsize=9)
+    fig.suptitle(figure_title(payload["title"], fig.get_figwidth()), fontsize=9)
     fig.savefig(path, dpi=120)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from icprl_lightning.evaluation.report import figure_title
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.reproduce.tables import BETAS, LAMBDAS, MISTAKE_RATES, Table
 
@@ -31,8 +32,8 @@ def lambda_beta_figure(table: Table, out_dir: Path) -> None:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("held-out return")
     axes[-1].legend(fontsize=6, bbox_to_anchor=(1.02, 1), loc="upper left")
-    fig.suptitle(f"{table.title} (corners: 3 training seeds, mean ± sem over seeds; others: 1 seed, "
-                 "± sem over held-out goals)", fontsize=9)
+    fig.suptitle(figure_title(f"{table.title} (corners: 3 training seeds, mean ± sem over seeds; others: 1 seed, "
+                              "± sem over held-out goals)", fig.get_figwidth()), fontsize=9)
     fig.savefig(out_dir / f"{table.name}.png", dpi=120)
 
 
@@ -86,7 +87,8 @@ def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("held-out return (rollout callback)")
     axes[-1].legend(fontsize=7)
-    fig.suptitle(f"{table.title}: return during training, one line per training seed", fontsize=9)
+    fig.suptitle(figure_title(f"{table.title}: return during training, one line per training seed",
+                              fig.get_figwidth()), fontsize=9)
     fig.savefig(path, dpi=120)
 
 
