@@ -26,3 +26,11 @@ def test_a_long_title_is_wrapped_to_the_figure_width():
 def test_the_rollout_figure_is_written(tmp_path):
     rollout_figure(_payload(3), tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 1000
+
+
+def test_bar_colors_never_repeat_within_a_figure():
+    from icprl_lightning.evaluation.report import _bar_colors
+
+    for n in (3, 10, 11, 20):
+        colors = [str(c) for c in _bar_colors(n)]
+        assert len(set(colors)) == n, n

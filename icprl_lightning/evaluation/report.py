@@ -195,6 +195,13 @@ def figure_title(text: str, fig_width_inches: float) -> str:
     return textwrap.fill(text, width=max(40, int(16 * fig_width_inches)))
 
 
+def _bar_colors(n: int) -> list:
+    """``n`` distinct colors: matplotlib's default cycle up to 10 bars, its 20-color map beyond (no repeats)."""
+    from matplotlib import colormaps
+
+    return [f"C{i}" for i in range(n)] if n <= 10 else [colormaps["tab20"](i % 20) for i in range(n)]
+
+
 def rollout_figure(payload: dict, path: str | Path) -> None:
     """Bars per quality (return, and success where reported), one per method, ± sem (see ``_error_bars``)."""
     from matplotlib.figure import Figure
@@ -204,10 +211,11 @@ def rollout_figure(payload: dict, path: str | Path) -> None:
     fig = Figure(figsize=(5.5 * len(shown) + 2.5, 3.6), layout="tight")
     axes = fig.subplots(1, len(shown), squeeze=False)
     width = 0.8 / len(results)
+    colors = _bar_colors(len(results))
     for ax, metric in zip(axes[0], shown, strict=True):
         for i, (name, res) in enumerate(results.items()):
             xs = np.arange(len(qualities)) + i * width
-            ax.bar(xs, [res[q].get(metric, np.nan) for q in qualities], width,
+            ax.bar(xs, [res[q].get(metric, np.nan) for q in qualities], width, color=colors[i],
                    yerr=[res[q].get(f"{metric}_sem", 0.0) or 0.0 for q in qualities], label=name, capsize=2)
         ax.set_xticks(np.arange(len(qualities)) + width * (len(results) - 1) / 2, qualities)
         ax.set_xlabel("context quality")
