@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 from factories import REPO, tiny_darkroom_args
@@ -206,3 +207,17 @@ def test_final_epoch_means_average_the_last_epochs_training_metrics(tmp_path):
     assert final_epoch_means(checkpoint) == {"clipped_fraction": pytest.approx(0.2)}  # epoch 0's 0.9 left out
     assert learning_curve(checkpoint) == [{"step": 30, "low": 12.5}]
     assert final_epoch_means(str(tmp_path / "elsewhere" / "checkpoints" / "last.ckpt")) == {}
+
+
+def test_redraw_draws_every_figure_from_the_outputs_alone(tmp_path):
+    from icprl_lightning.reproduce.runner import main
+
+    table = TABLES["darkroom_dit_steps"]
+    with pytest.raises(FileNotFoundError, match="run `icprl reproduce darkroom_dit_steps` first"):
+        main([table.name, "--redraw", "--out", str(tmp_path)])
+    results = REPO / "docs" / "results"
+    for suffix in ("", "_sampled", "_reproduce"):
+        shutil.copy(results / f"{table.name}{suffix}.json", tmp_path)
+    main([table.name, "--redraw", "--out", str(tmp_path)])
+    drawn = {p.name for p in tmp_path.glob("*.png")}
+    assert drawn == {f"{table.name}{s}.png" for s in ("", "_diagnostics", "_sampled", "_sampled_diagnostics", "_curve")}

@@ -297,6 +297,14 @@ def write_outputs(payload: dict[str, Any], out: str | Path) -> None:
     out.with_suffix(".json").write_text(json.dumps(payload, indent=2))
     bandit = "curves" in payload
     out.with_suffix(".md").write_text(regret_markdown(payload) if bandit else rollout_markdown(payload))
+    write_figures(payload, out)
+
+
+def write_figures(payload: dict[str, Any], out: str | Path) -> None:
+    """The figures of ``write_outputs`` alone: ``<out>.png`` and, with context diagnostics, ``<out>_diagnostics.png``
+    (``icprl reproduce TABLE --redraw`` redraws them from the JSON after a change to the figure code)."""
+    out = Path(out)
+    bandit = "curves" in payload
     (regret_figure if bandit else rollout_figure)(payload, out.with_suffix(".png"))
     if payload.get("diagnostics"):
         diagnostics_figure(payload, out.with_name(out.name + "_diagnostics.png"),

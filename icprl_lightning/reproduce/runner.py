@@ -4,6 +4,7 @@
     icprl reproduce darkroom_ipref                     # 3 training seeds per method, then evaluation
     icprl reproduce darkroom_ipref --seeds 0 --jobs 1  # a quicker, one-seed version
     icprl reproduce darkroom_ipref --dry-run           # print the commands only
+    icprl reproduce darkroom_ipref --redraw            # redraw its figures from docs/results, nothing else
 
 A table is a list of runs (a method's configs and overrides) and the evaluations made of them. Every run
 is trained once per training seed (``--seed_everything``) with ``icprl fit`` in its own process, at most
@@ -223,6 +224,25 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
     return summary
 
 
+def redraw(table: Table, out_dir: Path) -> list[Path]:
+    """Redraw ``table``'s figures from the outputs a full run wrote to ``out_dir`` (each evaluation's JSON, the
+    learning curves in ``<table>_reproduce.json``), without training or evaluating; returns the files read."""
+    from icprl_lightning.evaluation.report import write_figures
+
+    sources = [out_dir / f"{table.name}{e.suffix}.json" for e in table.evaluations] + [
+        out_dir / f"{table.name}_reproduce.json"]
+    missing = [str(p) for p in sources if not p.exists()]
+    if missing:
+        raise FileNotFoundError(f"--redraw draws from a full run's outputs; missing {', '.join(missing)}: run "
+                                f"`icprl reproduce {table.name}` first")
+    for source in sources[:-1]:
+        write_figures(json.loads(source.read_text()), source.with_suffix(""))
+    if table.figure:
+        FIGURES[table.figure](table, out_dir)
+    curve_figure(table, json.loads(sources[-1].read_text())["learning_curves"], out_dir / f"{table.name}_curve.png")
+    return sources
+
+
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(prog="icprl reproduce", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -237,6 +257,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--dry-run", action="store_true", help="print the fit commands, run nothing")
     parser.add_argument("--only", nargs="+", metavar="RUN", help="train only these runs (and the earlier stages "
                         "they need), evaluate nothing")
+    parser.add_argument("--redraw", action="store_true", help="only redraw the figures from the table's JSON "
+                        "outputs in --out (after a change to the figure code)")
     args = parser.parse_args(argv)
     if args.list or args.table is None:
         for table in TABLES.values():
@@ -244,5 +266,9 @@ def main(argv: list[str] | None = None) -> dict:
         return {}
     if args.jobs < 1:
         parser.error(f"--jobs must be ≥ 1, got {args.jobs}")
+    if args.redraw:
+        sources = redraw(TABLES[args.table], Path(args.out))
+        print(f"{args.table}: figures redrawn from {', '.join(map(str, sources))}", flush=True)
+        return {}
     return reproduce(TABLES[args.table], args.seeds, args.jobs, Path(args.work), Path(args.out), args.refit,
                      args.dry_run, args.threads, args.only)
