@@ -112,6 +112,9 @@ def _tprl_runs() -> tuple[Run, ...]:
             Run("ICRG cross-fitted labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
                 needs=(stage1, ("--model.init_args.cross_fit_checkpoints", folds))),
             Run("DIT true rewards TD", ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, *DIT_TD)),
+            # sharper weights: RewardGen's TD advantages rank actions weakly (scripts/dit_weight_quality.py)
+            Run("ICRG in-sample labels TD eta0.3", icrg, (*TPRL_SCALE, *DIT_TD, "--model.init_args.eta", "0.3"),
+                needs=(stage1,)),
             Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
 
 
