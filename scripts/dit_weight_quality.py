@@ -65,12 +65,9 @@ def auc(scores: np.ndarray, positive: np.ndarray) -> float | None:
     n_pos, n_neg = positive.sum(), (~positive).sum()
     if n_pos == 0 or n_neg == 0:
         return None
-    ranks = np.empty(len(scores))
-    order = np.argsort(scores, kind="stable")
-    ranks[order] = np.arange(1, len(scores) + 1)
-    for value in np.unique(scores[np.diff(np.sort(scores), prepend=np.nan) == 0]):  # average tied ranks
-        tied = scores == value
-        ranks[tied] = ranks[tied].mean()
+    _, group, counts = np.unique(scores, return_inverse=True, return_counts=True)
+    last = np.cumsum(counts)  # 1-based rank of each tie group's last member
+    ranks = (last - (counts - 1) / 2)[group]  # every member gets its group's average rank
     return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
 
 
@@ -126,7 +123,8 @@ def measure(checkpoint: Path) -> dict[str, dict[str, float]]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--ckpt", type=Path, action="append", required=True, help="a DIT checkpoint (repeat: seeds)")
+    parser.add_argument("--ckpt", type=Path, action="append", required=True,
+                        help="a DIT or ICRG checkpoint (repeat: seeds)")
     parser.add_argument("--json", type=Path, help="also write the per-checkpoint measures and their summary")
     args = parser.parse_args()
     per_ckpt = {str(c): measure(c) for c in args.ckpt}
