@@ -1,0 +1,177 @@
+r"""What one T-PRL pair can tell about DarkRoom's rewards: the Bayes-optimal R(s, a | ξ_a, ξ_b, y), beside RewardGen.
+
+    python scripts/reward_gen_bayes.py --data-config <RewardGen run>/config.yaml [--json PATH]
+
+RewardGen (paper section 5.3, eq. (L_R^T)) infers per-step rewards r̂(s, a | D^T) from one labeled pair. How
+good can such rewards be? On DarkRoom the answer is computable: the task is the goal cell g, r_g(s, a) = 1
+when the move lands on g, and the pair's label was drawn from the Bradley–Terry model of the data
+(``annotators/bradley_terry.py``):
+
+    P(y = 1 | g) = σ((R_g(ξ_a) − R_g(ξ_b)) / temperature),   R_g(ξ) = Σ_h r_g(s_h, a_h).
+
+With a uniform prior over all grid cells (the held-out goals are not in the training set, so no prior
+learned from training goals could put mass on them), the posterior p(g | D^T) ∝ P(y | g) is exact, and
+the Bayes reward is its expectation, r̄(s, a | D^T) = p(g = s' | D^T) for the cell s' the move lands on.
+No reward model conditioned on the same pair can rank transitions better on average. This script measures
+it with ``scripts/reward_gen_quality.py``'s two fair measures, on the same held-out data:
+
+* ``other_pair_accuracy``: the posterior's predicted winner of another pair of the task,
+  argmax over y of Σ_g p(g | D^T) P(y | g), against that pair's label;
+* ``reward_correlation``: Pearson correlation, pooled over steps and tasks, of r̄ on the held-out unlabeled
+  behavior trajectories (each with its evaluation pair as D^T) with their latent rewards;
+
+plus ``posterior_on_goal`` (the posterior mass on the true goal; 1/cells under the prior) and
+``goal_in_pair`` (the share of pairs in which either trajectory ever lands on the goal: without that,
+the label says where the goal is not, never where it is).
+
+This is an oracle of the reward stage: it reads the family's dynamics and reward form, which ICRG never
+does. It bounds what a better RewardGen objective can reach with one pair as context.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from darkroom_tprl_results import datamodule  # scripts/: the same trajectories with labels or true rewards
+from reward_gen_quality import MEASURES
+
+from icprl_lightning.contexts import TrajectoryPreferenceContext, context_from_batch
+from icprl_lightning.families.base import QUALITIES
+from icprl_lightning.families.darkroom.env import N_ACTIONS, transition
+from icprl_lightning.families.darkroom.family import DarkRoomFamily
+from icprl_lightning.families.darkroom.oracle import optimal_actions
+
+# what the posterior conditions on: the label alone, the two trajectories alone (the behavior policy is
+# goal-directed, so its moves point at the goal), or the whole pair
+EVIDENCE = {"label": "the label only", "trajectories": "the trajectories only (no label)", "pair": "the whole pair"}
+
+
+def landing_cells(states: torch.Tensor, actions: torch.Tensor, size: int) -> np.ndarray:
+    """Index y·size + x of the cell each move lands on: states [B, H, 2], actions [B, H] -> [B, H]."""
+    nxt = transition(states.numpy().astype(np.int64), actions.numpy().astype(np.int64), size)
+    return nxt[..., 1] * size + nxt[..., 0]
+
+
+def goal_returns(cells: np.ndarray, n_cells: int) -> np.ndarray:
+    """R_g(ξ) for every goal cell g: landings per cell, [B, H] -> [B, n_cells]."""
+    out = np.zeros((len(cells), n_cells))
+    np.add.at(out, (np.repeat(np.arange(len(cells)), cells.shape[1]), cells.ravel()), 1.0)
+    return out
+
+
+def log_sigmoid(x: np.ndarray) -> np.ndarray:
+    return -np.logaddexp(0.0, -x)
+
+
+def grid_goals(size: int) -> np.ndarray:
+    """Every cell as a goal [size², 2], in the order of ``landing_cells``' index (y·size + x)."""
+    y, x = np.divmod(np.arange(size * size), size)
+    return np.stack([x, y], axis=1)
+
+
+def behavior_loglik(states: torch.Tensor, actions: torch.Tensor, p_optimal: float, size: int) -> np.ndarray:
+    """log π_g(ξ) of trajectories [B, H] under the mixed behavior policy for every goal g -> [B, size²]."""
+    cells = states.numpy().astype(np.int64)[:, :, None, :]  # [B, H, 1, 2]
+    best = optimal_actions(cells, grid_goals(size)[None, None])  # [B, H, G]
+    match = best == actions.numpy().astype(np.int64)[:, :, None]
+    step = np.log(np.where(match, p_optimal + (1 - p_optimal) / N_ACTIONS, (1 - p_optimal) / N_ACTIONS))
+    return step.sum(1)
+
+
+def label_loglik(context: TrajectoryPreferenceContext, size: int, temperature: float) -> np.ndarray:
+    """log P(y | ξ_a, ξ_b, g) of the Bradley–Terry label for every goal g -> [B, size²]."""
+    n = size * size
+    diff = (goal_returns(landing_cells(context.states_a, context.actions_a, size), n)
+            - goal_returns(landing_cells(context.states_b, context.actions_b, size), n)) / temperature
+    sign = np.where(context.preferred.numpy()[:, None] > 0.5, 1.0, -1.0)
+    return log_sigmoid(sign * diff)
+
+
+def normalize(logp: np.ndarray) -> np.ndarray:
+    p = np.exp(logp - logp.max(1, keepdims=True))
+    return p / p.sum(1, keepdims=True)
+
+
+def posteriors(context: TrajectoryPreferenceContext, size: int, temperature: float, p_optimal: float
+               ) -> dict[str, np.ndarray]:
+    """p(g | evidence) [B, size²] under a uniform prior over cells, for each evidence of ``EVIDENCE``."""
+    label = label_loglik(context, size, temperature)
+    paths = (behavior_loglik(context.states_a, context.actions_a, p_optimal, size)
+             + behavior_loglik(context.states_b, context.actions_b, p_optimal, size))
+    return {"label": normalize(label), "trajectories": normalize(paths), "pair": normalize(paths + label)}
+
+
+def bayes_rewards(post: np.ndarray, states: torch.Tensor, actions: torch.Tensor, size: int) -> np.ndarray:
+    """r̄(s_h, a_h | D^T) = p(g = s'_h | D^T) for trajectories [B, T] -> [B, T]."""
+    cells = landing_cells(states, actions, size)
+    return np.take_along_axis(post, cells, axis=1)
+
+
+def other_pair_accuracy(post: np.ndarray, scored: TrajectoryPreferenceContext, size: int, temperature: float) -> float:
+    """The posterior predictive's winner of ``scored`` (another pair of the task) against its label."""
+    n = size * size
+    diff = (goal_returns(landing_cells(scored.states_a, scored.actions_a, size), n)
+            - goal_returns(landing_cells(scored.states_b, scored.actions_b, size), n)) / temperature
+    p_a = (post * (1.0 / (1.0 + np.exp(-diff)))).sum(1)
+    return float(((p_a > 0.5) == (scored.preferred.numpy() > 0.5)).mean())
+
+
+def goal_cells(family: DarkRoomFamily, task_index: np.ndarray) -> np.ndarray:
+    goals = family.test_goals[task_index]
+    return goals[:, 1] * family.size + goals[:, 0]
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data-config", type=Path, default=Path("configs/reward_gen_darkroom.yaml"),
+                        help="a DarkRoom T-PRL data config (a RewardGen run's config.yaml: the same held-out data)")
+    parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
+    parser.add_argument("--json", type=Path, default=Path("docs/results/reward_gen_bayes_darkroom.json"))
+    args = parser.parse_args(argv)
+    dms = {kind: datamodule(args.data_config, kind, args.data_root)
+           for kind in ("trajectory_preference", "reward_trajectory")}
+    labeled = dms["trajectory_preference"]
+    family = labeled.family
+    if not isinstance(family, DarkRoomFamily):
+        parser.error(f"{args.data_config}: the Bayes reward is computed for DarkRoom only, got {type(family).__name__}")
+    temperature = labeled.setting.bt_temperature
+    if temperature is None:
+        parser.error(f"{args.data_config}: the labels must come from the Bradley–Terry annotator (bt_temperature)")
+    mixing = {q: c["mixing"] for q, c in labeled.load().manifest["info"]["calibration"].items()}
+    suites = {s.quality: s for s in labeled.evaluation_suites()}
+    rewards = {s.quality: s.context.rewards for s in dms["reward_trajectory"].evaluation_suites()}
+    pairs = labeled.heldout_pairs()
+    out = {e: {} for e in EVIDENCE}
+    for q in QUALITIES:
+        context = suites[q].context
+        post = posteriors(context, family.size, temperature, mixing[q])
+        goals = goal_cells(family, np.asarray(suites[q].task_index))
+        scored = context_from_batch("trajectory_preference", pairs[q])
+        post_other = posteriors(context_from_batch("trajectory_preference", pairs[q], prefix="pair_"), family.size,
+                                temperature, mixing[q])
+        for e in EVIDENCE:
+            r_bar = bayes_rewards(post[e], context.behavior_states, context.behavior_actions, family.size)
+            out[e][q] = {
+                "other_pair_accuracy": other_pair_accuracy(post_other[e], scored, family.size, temperature),
+                "reward_correlation": float(np.corrcoef(r_bar.ravel(), rewards[q].numpy().ravel())[0, 1]),
+                "posterior_on_goal": float(post[e][np.arange(len(goals)), goals].mean())}
+    result = {"data_config": str(args.data_config), "prior": f"uniform over the {family.size ** 2} cells",
+              "temperature": temperature, "mixing": mixing, "evidence": EVIDENCE, "bayes": out}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=2))
+    keys = ("other_pair_accuracy", "reward_correlation", "posterior_on_goal")
+    names = {**MEASURES, "posterior_on_goal": "p(true goal)"}
+    print(f"Bayes-optimal reward from one pair on the held-out goals (prior {result['prior']}); low / medium / high")
+    print("| posterior from | " + " | ".join(names[k] for k in keys) + " |\n|---|" + "---|" * len(keys))
+    for e, what in EVIDENCE.items():
+        print(f"| {what} | " + " | ".join(" / ".join(f"{out[e][q][k]:.2f}" for q in QUALITIES) for k in keys) + " |")
+    print(f"wrote {args.json}")
+    return result
+
+
+if __name__ == "__main__":
+    main()
