@@ -115,6 +115,18 @@ def check_increasing(owner: str, key: str, values: Sequence[Any], low: float, hi
     return tuple(float(v) for v in values)
 
 
+def check_range(owner: str, key: str, value: Any) -> tuple[float, float] | None:
+    """``value`` is None or two finite numbers [low, high] with low < high."""
+    if value is None:
+        return None
+    if isinstance(value, str | bytes) or not isinstance(value, Sequence) or len(value) != 2:
+        _fail(owner, key, "null or a list [low, high]", value)
+    low, high = (float(_number(owner, key, v, integer=False)) for v in value)
+    if not low < high:
+        _fail(owner, key, "[low, high] with low < high", list(value))
+    return low, high
+
+
 def check_transformer(owner: str, n_layer: Any, n_embd: Any, n_head: Any, dropout: Any, lr: Any,
                       weight_decay: Any, max_context: Any) -> None:
     """The shared architecture and optimizer arguments of every method."""

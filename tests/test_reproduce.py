@@ -159,7 +159,11 @@ def test_the_tprl_table_passes_each_seeds_reward_models_to_icrg(tmp_path, capsys
     icrg = [run for run in table.runs if run.needs]
     assert len(icrg) >= 2 and len(lines) == len(icrg)  # only the ICRG stage is left
     assert all("icrg_darkroom.yaml" in line for line in lines)
-    assert all("--model.init_args.reward_gen_checkpoint /ckpt/RewardGen-seed0/best.ckpt" in line for line in lines)
+    for run in icrg:  # each ICRG names the same seed's checkpoint of the RewardGen run it needs
+        line = next(line for line in lines if f"--trainer.logger.init_args.name {slug(run.name)}-seed0 " in line)
+        (stage1,) = dict(run.needs)["--model.init_args.reward_gen_checkpoint"]
+        assert f"--model.init_args.reward_gen_checkpoint /ckpt/{slug(stage1)}-seed0/best.ckpt" in line
+    assert sum("/ckpt/RewardGen-seed0/best.ckpt" in line for line in lines) >= 2
     crossfit = [line for line in lines if "cross_fit_checkpoints" in line]
     assert len(crossfit) == sum(len(run.needs) == 2 for run in icrg) >= 1
     assert all("[/ckpt/RewardGen_fold0-seed0/best.ckpt,/ckpt/RewardGen_fold1-seed0/best.ckpt]" in c for c in crossfit)

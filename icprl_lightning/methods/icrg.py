@@ -40,7 +40,7 @@ from icprl_lightning.methods.reward_gen import RewardGenModule
 from icprl_lightning.models.estimator import InContextRewardModel
 from icprl_lightning.validation import HyperparameterError
 
-ARCHITECTURE = ("n_layer", "n_embd", "n_head", "max_context", "dropout", "causal")
+ARCHITECTURE = ("n_layer", "n_embd", "n_head", "max_context", "dropout", "causal", "reward_range")
 
 
 # where a fit's checkpoint holds PreferenceDataModule's state_dict, its fold settings (Lightning names the

@@ -18,6 +18,10 @@ Which pair is scored (``pair_source``):
   step h of a labeled trajectory sees the context's steps < h. Still not leak-free: s_h continues one of
   the two trajectories whose steps < h are in view, in their winner/loser slots (``models/estimator.py``).
 
+``reward_range`` [low, high] (default: unbounded) bounds every per-step reward, r̂ = low + (high − low) σ(f):
+the Bradley–Terry sums then live on the latent returns' scale (the labels' temperature is 1), and a
+transition can only carry reward in proportion to how much it may (DarkRoom: [0, 1]). ICRG copies it.
+
 All 2H transitions of the scored pair are queries in one pass; without the causal rule each sees the
 whole context (the paper's "read out at the last time step", see ``models/estimator.py``). Logged:
 ``loss`` and ``pair_accuracy`` (summed rewards order the pair as its label does); the held-out tasks'
@@ -36,7 +40,7 @@ from torch import Tensor
 from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext, context_from_batch
 from icprl_lightning.methods.losses import trajectory_preference_loss
 from icprl_lightning.models.estimator import InContextRewardModel
-from icprl_lightning.validation import check_choice, check_sizes, check_transformer
+from icprl_lightning.validation import check_choice, check_range, check_sizes, check_transformer
 
 PAIR_SOURCES = ("other_pair", "context", "context_causal")
 
@@ -46,9 +50,11 @@ class RewardGenModule(L.LightningModule):
     needs_query_labels = False
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
-                 pair_source: str = "other_pair", n_layer: int = 4, n_embd: int = 32, n_head: int = 4,
+                 pair_source: str = "other_pair", reward_range: list[float] | None = None,
+                 n_layer: int = 4, n_embd: int = 32, n_head: int = 4,
                  dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0) -> None:
         check_choice("RewardGenModule", "pair_source", pair_source, PAIR_SOURCES)
+        bounds = check_range("RewardGenModule", "reward_range", reward_range)
         check_sizes("RewardGenModule", state_dim, action_dim)
         check_transformer("RewardGenModule", n_layer, n_embd, n_head, dropout, lr, weight_decay, max_context)
         super().__init__()
@@ -57,7 +63,7 @@ class RewardGenModule(L.LightningModule):
         self.hparams["causal"] = causal  # R_ψ's reading rule, saved for ICRG to copy (icrg.ARCHITECTURE)
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.reward = InContextRewardModel(state_dim, self.action_spec, n_layer, n_embd, n_head, max_context, dropout,
-                                           causal=causal)
+                                           causal=causal, reward_range=bounds)
         self._moments = torch.zeros(3, dtype=torch.float64)  # count, sum, sum of squares of val outputs
 
     @property

@@ -7,6 +7,9 @@ itself: by the query mask this equals appending the query after the context and 
 position, which is how the paper reads R_ψ ("we read out its prediction at the last time step"), for all
 queries of a trajectory in one pass.
 
+R_ψ's outputs are unbounded by default; ``reward_range`` [low, high] bounds them, r̂ = low + (high − low) σ(f),
+the prior that the latent per-step rewards lie in a known interval (DarkRoom's are in {0, 1}).
+
 R_ψ has a second reading rule, ``causal`` (RewardGen's ``pair_source="context_causal"``): the query for
 step h of a trajectory sees only the pair context's tokens of steps < h (step 0 sees none, only itself),
 in training and in ``label`` alike. See ``InContextRewardModel``.
@@ -20,6 +23,7 @@ from torch import Tensor, nn
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.models.tokenizers import TOKENIZERS
 from icprl_lightning.models.transformer import CausalTransformer
+from icprl_lightning.validation import check_range
 
 
 class InContextEstimator(nn.Module):
@@ -74,17 +78,19 @@ class InContextRewardModel(InContextEstimator):
     """
 
     def __init__(self, state_dim: int, action_spec: ActionSpec, n_layer: int, n_embd: int, n_head: int,
-                 max_context: int, dropout: float = 0.0, causal: bool = False) -> None:
+                 max_context: int, dropout: float = 0.0, causal: bool = False,
+                 reward_range: tuple[float, float] | None = None) -> None:
         super().__init__("trajectory_preference", state_dim, action_spec, True, n_layer, n_embd, n_head, max_context,
                          dropout)
         if not isinstance(causal, bool):
             raise ValueError(f"InContextRewardModel: causal must be a bool, got {causal!r}")
         self.causal = causal
+        self.reward_range = check_range("InContextRewardModel", "reward_range", reward_range)
         self.register_buffer("reward_mean", torch.zeros(()))
         self.register_buffer("reward_std", torch.ones(()))
 
     def extra_repr(self) -> str:
-        return f"causal={self.causal}"
+        return f"causal={self.causal}, reward_range={self.reward_range}"
 
     def visible(self, horizon: int, n_queries: int, device: torch.device) -> Tensor | None:
         """Context tokens each query sees: None (all) or, causally, step i mod H of query i -> (Q,)."""
@@ -97,9 +103,14 @@ class InContextRewardModel(InContextEstimator):
         return torch.arange(n_queries, device=device) % horizon
 
     def forward(self, context, states: Tensor, actions: Tensor) -> Tensor:
-        """Raw rewards R_ψ(s, a | context) for states (B, Q, S), actions (B, Q) -> (B, Q), read per ``causal``."""
-        return super().forward(context, states, actions,
-                               self.visible(context.states_a.shape[1], states.shape[1], states.device))
+        """Raw rewards R_ψ(s, a | context) for states (B, Q, S), actions (B, Q) -> (B, Q), read per ``causal``,
+        inside ``reward_range`` when it is set."""
+        r = super().forward(context, states, actions, self.visible(context.states_a.shape[1], states.shape[1],
+                                                                    states.device))
+        if self.reward_range is None:
+            return r
+        low, high = self.reward_range
+        return low + (high - low) * torch.sigmoid(r)
 
     def label(self, context, states: Tensor, actions: Tensor) -> Tensor:
         """Standardized r̂(s_h, a_h | D^T) for states (B, T, S), actions (B, T) -> (B, T)."""

@@ -86,6 +86,9 @@ DIT_PICK = ("--model.init_args.eta", "1.0", "--model.init_args.gamma", "0.95")
 DIT_G099 = ("--model.init_args.eta", "1.0", "--model.init_args.gamma", "0.99")
 # Â as V̂'s one-step TD error instead of Q̂ − V̂ (methods/dit.py; scripts/dit_weight_quality.py says why), at the pick
 DIT_TD = (*DIT_PICK, "--model.init_args.advantage", "td")
+# RewardGen's per-step rewards bounded to DarkRoom's [0, 1] (methods/reward_gen.py): scripts/reward_gen_bayes.py
+# shows one pair identifies the goal, so the unbounded r̂'s weak correlation is the objective's, not the data's
+BOUNDED = ("--model.init_args.reward_range", "[0, 1]")
 FOLDS = 2
 REWARD_GEN = "configs/reward_gen_darkroom.yaml"
 
@@ -115,6 +118,13 @@ def _tprl_runs() -> tuple[Run, ...]:
             # sharper weights: RewardGen's TD advantages rank actions weakly (scripts/dit_weight_quality.py)
             Run("ICRG in-sample labels TD eta0.3", icrg, (*TPRL_SCALE, *DIT_TD, "--model.init_args.eta", "0.3"),
                 needs=(stage1,)),
+            # RewardGen with per-step rewards in [0, 1], and ICRG TD on its in-sample labels
+            Run("RewardGen bounded", (REWARD_GEN,), (*TPRL_SCALE, *BOUNDED), evaluated=False, checkpoint="best"),
+            # 3× the optimizer steps: is RewardGen's gap to the Bayes reward (scripts/reward_gen_bayes.py) its budget?
+            Run("RewardGen bounded 12 epochs", (REWARD_GEN,), (*TPRL_SCALE, *BOUNDED, "--trainer.max_epochs", "12"),
+                evaluated=False, checkpoint="best"),
+            Run("ICRG bounded in-sample labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
+                needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded",)),)),
             Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
 
 
