@@ -123,6 +123,8 @@ def _tprl_runs() -> tuple[Run, ...]:
             # 3× the optimizer steps: is RewardGen's gap to the Bayes reward (scripts/reward_gen_bayes.py) its budget?
             Run("RewardGen bounded 12 epochs", (REWARD_GEN,), (*TPRL_SCALE, *BOUNDED, "--trainer.max_epochs", "12"),
                 evaluated=False, checkpoint="best"),
+            Run("ICRG bounded 12 epochs in-sample labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
+                needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded 12 epochs",)),), seeds=(0,)),
             Run("ICRG bounded in-sample labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
                 needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded",)),)),
             Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
