@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from icprl_lightning.data import PreferenceDataModule
 from icprl_lightning.data.settings import (
@@ -143,3 +144,13 @@ def config_args(config: str | Path) -> list[str]:
     if base is None:
         return ["--config", str(path)]
     return ["--config", str(REPO / base.group(1)), "--config", str(path)]
+
+
+def darkroom_tprl_config(path: Path, data_root: str, setting: dict[str, Any]) -> Path:
+    """A data-only config of DarkRoom T-PRL pairs at ``path`` (what the scripts' ``--data-config`` reads)."""
+    path.write_text(yaml.safe_dump({"data": {
+        "class_path": "icprl_lightning.data.PreferenceDataModule",
+        "init_args": {"family": {"class_path": "icprl_lightning.families.darkroom.DarkRoomFamily"},
+                      "setting": {"class_path": "icprl_lightning.data.settings.TrajectoryPairs", "init_args": setting},
+                      "root_dir": data_root, "pairs": True}}}))
+    return path

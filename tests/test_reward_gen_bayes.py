@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 import torch
-import yaml
+from factories import darkroom_tprl_config
 
 from icprl_lightning.contexts import TrajectoryPreferenceContext
 from icprl_lightning.families.darkroom.env import step_reward, transition
@@ -72,12 +72,7 @@ def test_label_likelihood_follows_the_label():
 
 
 def test_script_end_to_end(data_root, tmp_path, capsys):
-    config = tmp_path / "tiny.yaml"
-    config.write_text(yaml.safe_dump({"data": {
-        "class_path": "icprl_lightning.data.PreferenceDataModule",
-        "init_args": {"family": {"class_path": "icprl_lightning.families.darkroom.DarkRoomFamily"},
-                      "setting": {"class_path": "icprl_lightning.data.settings.TrajectoryPairs", "init_args": SETTING},
-                      "root_dir": data_root, "pairs": True}}}))
+    config = darkroom_tprl_config(tmp_path / "tiny.yaml", data_root, SETTING)
     out_json = tmp_path / "bayes.json"
     out = reward_gen_bayes.main(["--data-config", str(config), "--json", str(out_json)])
     assert json.loads(out_json.read_text()) == out

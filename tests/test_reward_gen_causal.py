@@ -12,8 +12,7 @@ import lightning as L
 import numpy as np
 import pytest
 import torch
-import yaml
-from factories import darkroom_data  # noqa: E402
+from factories import darkroom_data, darkroom_tprl_config  # noqa: E402
 
 from icprl_lightning.checkpoints import load_module
 from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext, context_from_batch
@@ -189,13 +188,7 @@ def _redrawn(states: torch.Tensor, actions: torch.Tensor, h: int) -> tuple[torch
 
 
 def _config(tmp_path: pathlib.Path, data_root: str) -> pathlib.Path:
-    config = tmp_path / "tiny.yaml"
-    config.write_text(yaml.safe_dump({"data": {
-        "class_path": "icprl_lightning.data.PreferenceDataModule",
-        "init_args": {"family": {"class_path": "icprl_lightning.families.darkroom.DarkRoomFamily"},
-                      "setting": {"class_path": "icprl_lightning.data.settings.TrajectoryPairs", "init_args": SETTING},
-                      "root_dir": data_root, "pairs": True}}}))
-    return config
+    return darkroom_tprl_config(tmp_path / "tiny.yaml", data_root, SETTING)
 
 
 def test_quality_script_end_to_end(tprl, causal_ckpt, data_root, tmp_path, capsys):
