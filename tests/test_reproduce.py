@@ -164,9 +164,14 @@ def test_the_tprl_table_passes_each_seeds_reward_models_to_icrg(tmp_path, capsys
         (stage1,) = dict(run.needs)["--model.init_args.reward_gen_checkpoint"]
         assert f"--model.init_args.reward_gen_checkpoint /ckpt/{slug(stage1)}-seed0/best.ckpt" in line
     assert sum("/ckpt/RewardGen-seed0/best.ckpt" in line for line in lines) >= 2
-    crossfit = [line for line in lines if "cross_fit_checkpoints" in line]
-    assert len(crossfit) == sum(len(run.needs) == 2 for run in icrg) >= 1
-    assert all("[/ckpt/RewardGen_fold0-seed0/best.ckpt,/ckpt/RewardGen_fold1-seed0/best.ckpt]" in c for c in crossfit)
+    crossfit = [run for run in icrg if len(run.needs) == 2]
+    assert sum("cross_fit_checkpoints" in line for line in lines) == len(crossfit) >= 2
+    for run in crossfit:  # the fold models in fold order, of the same seed
+        line = next(line for line in lines if f"--trainer.logger.init_args.name {slug(run.name)}-seed0 " in line)
+        folds = dict(run.needs)["--model.init_args.cross_fit_checkpoints"]
+        assert "[" + ",".join(f"/ckpt/{slug(f)}-seed0/best.ckpt" for f in folds) + "]" in line
+    unbounded = "[/ckpt/RewardGen_fold0-seed0/best.ckpt,/ckpt/RewardGen_fold1-seed0/best.ckpt]"
+    assert any(unbounded in line for line in lines)
 
 
 def test_a_later_stage_starts_as_soon_as_its_own_needs_are_done(tmp_path, monkeypatch):

@@ -93,6 +93,11 @@ FOLDS = 2
 REWARD_GEN = "configs/reward_gen_darkroom.yaml"
 
 
+def holdout(fold: int) -> tuple[str, ...]:
+    """Overrides: RewardGen fitted on every training goal but those of ``fold`` of ``FOLDS`` (cross-fitting)."""
+    return ("--data.init_args.folds", str(FOLDS), "--data.init_args.holdout_fold", str(fold))
+
+
 def _tprl_runs() -> tuple[Run, ...]:
     """ICRG's stages beside their oracles: RewardGen on all training goals and on each fold's complement, ICRG on
     in-sample and on cross-fitted labels, DIT on true rewards, DP²T on the same pairs."""
@@ -100,8 +105,7 @@ def _tprl_runs() -> tuple[Run, ...]:
     icrg = ("configs/icrg_darkroom.yaml",)
     stage1 = ("--model.init_args.reward_gen_checkpoint", ("RewardGen",))
     return (Run("RewardGen", (REWARD_GEN,), TPRL_SCALE, evaluated=False, checkpoint="best"),
-            *(Run(name, (REWARD_GEN,), (*TPRL_SCALE, "--data.init_args.folds", str(FOLDS),
-                                        "--data.init_args.holdout_fold", str(i)), evaluated=False, checkpoint="best")
+            *(Run(name, (REWARD_GEN,), (*TPRL_SCALE, *holdout(i)), evaluated=False, checkpoint="best")
               for i, name in enumerate(folds)),
             Run("ICRG in-sample labels", icrg, (*TPRL_SCALE, *DIT_PICK), needs=(stage1,)),
             Run("ICRG cross-fitted labels", icrg, (*TPRL_SCALE, *DIT_PICK),
@@ -122,11 +126,18 @@ def _tprl_runs() -> tuple[Run, ...]:
             Run("RewardGen bounded", (REWARD_GEN,), (*TPRL_SCALE, *BOUNDED), evaluated=False, checkpoint="best"),
             # 3× the optimizer steps: is RewardGen's gap to the Bayes reward (scripts/reward_gen_bayes.py) its budget?
             Run("RewardGen bounded 12 epochs", (REWARD_GEN,), (*TPRL_SCALE, *BOUNDED, "--trainer.max_epochs", "12"),
-                evaluated=False, checkpoint="best"),
+                evaluated=False, checkpoint="best", seeds=(0,)),
             Run("ICRG bounded 12 epochs in-sample labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
                 needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded 12 epochs",)),), seeds=(0,)),
             Run("ICRG bounded in-sample labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
                 needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded",)),)),
+            *(Run(f"RewardGen bounded fold{i}", (REWARD_GEN,),
+                  (*TPRL_SCALE, *BOUNDED, *holdout(i)),
+                  evaluated=False, checkpoint="best") for i in range(FOLDS)),
+            Run("ICRG bounded cross-fitted labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
+                needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded",)),
+                       ("--model.init_args.cross_fit_checkpoints",
+                        tuple(f"RewardGen bounded fold{i}" for i in range(FOLDS))))),
             Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
 
 
