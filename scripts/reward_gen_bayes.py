@@ -9,20 +9,24 @@ when the move lands on g, and the pair's label was drawn from the Bradley–Terr
 
     P(y = 1 | g) = σ((R_g(ξ_a) − R_g(ξ_b)) / temperature),   R_g(ξ) = Σ_h r_g(s_h, a_h).
 
-With a uniform prior over all grid cells (the held-out goals are not in the training set, so no prior
-learned from training goals could put mass on them), the posterior p(g | D^T) ∝ P(y | g) is exact, and
-the Bayes reward is its expectation, r̄(s, a | D^T) = p(g = s' | D^T) for the cell s' the move lands on.
-No reward model conditioned on the same pair can rank transitions better on average. This script measures
-it with ``scripts/reward_gen_quality.py``'s two fair measures, on the same held-out data:
+The pair's trajectories are evidence too: both were drawn from the mixed behavior policy π_g (the optimal
+action toward g with probability p, the quality's calibrated mixing, else a uniform action), so
 
-* ``other_pair_accuracy``: the posterior's predicted winner of another pair of the task,
+    p(g | D^T) ∝ P(y | g) · Π_h π_g(a^a_h | s^a_h) · Π_h π_g(a^b_h | s^b_h),
+
+with a uniform prior over all grid cells (the held-out goals are not in the training set, so no prior
+learned from training goals could put mass on them). The script gives the posterior from each evidence
+(``EVIDENCE``): the label alone, the trajectories alone, and the whole pair, the exact posterior. The
+Bayes reward is its expectation, r̄(s, a | D^T) = p(g = s' | D^T) for the cell s' the move lands on; from
+the whole pair, no reward model conditioned on the same pair ranks transitions better on average. It is
+measured with ``scripts/reward_gen_quality.py``'s two fair measures, on the same held-out data:
+
+* ``other_pair_accuracy``: the posterior predictive's winner of another pair of the task,
   argmax over y of Σ_g p(g | D^T) P(y | g), against that pair's label;
 * ``reward_correlation``: Pearson correlation, pooled over steps and tasks, of r̄ on the held-out unlabeled
   behavior trajectories (each with its evaluation pair as D^T) with their latent rewards;
 
-plus ``posterior_on_goal`` (the posterior mass on the true goal; 1/cells under the prior) and
-``goal_in_pair`` (the share of pairs in which either trajectory ever lands on the goal: without that,
-the label says where the goal is not, never where it is).
+plus ``posterior_on_goal``, the posterior mass on the true goal (1/cells under the prior).
 
 This is an oracle of the reward stage: it reads the family's dynamics and reward form, which ICRG never
 does. It bounds what a better RewardGen objective can reach with one pair as context.

@@ -122,22 +122,21 @@ def _tprl_runs() -> tuple[Run, ...]:
             # sharper weights: RewardGen's TD advantages rank actions weakly (scripts/dit_weight_quality.py)
             Run("ICRG in-sample labels TD eta0.3", icrg, (*TPRL_SCALE, *DIT_TD, "--model.init_args.eta", "0.3"),
                 needs=(stage1,)),
-            # RewardGen with per-step rewards in [0, 1], and ICRG TD on its in-sample labels
+            # RewardGen with per-step rewards in [0, 1], and ICRG TD on its in-sample and cross-fitted labels
             Run("RewardGen bounded", (REWARD_GEN,), (*TPRL_SCALE, *BOUNDED), evaluated=False, checkpoint="best"),
-            # 3× the optimizer steps: is RewardGen's gap to the Bayes reward (scripts/reward_gen_bayes.py) its budget?
-            Run("RewardGen bounded 12 epochs", (REWARD_GEN,), (*TPRL_SCALE, *BOUNDED, "--trainer.max_epochs", "12"),
-                evaluated=False, checkpoint="best", seeds=(0,)),
-            Run("ICRG bounded 12 epochs in-sample labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
-                needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded 12 epochs",)),), seeds=(0,)),
             Run("ICRG bounded in-sample labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
                 needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded",)),)),
-            *(Run(f"RewardGen bounded fold{i}", (REWARD_GEN,),
-                  (*TPRL_SCALE, *BOUNDED, *holdout(i)),
+            *(Run(f"RewardGen bounded fold{i}", (REWARD_GEN,), (*TPRL_SCALE, *BOUNDED, *holdout(i)),
                   evaluated=False, checkpoint="best") for i in range(FOLDS)),
             Run("ICRG bounded cross-fitted labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
                 needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded",)),
                        ("--model.init_args.cross_fit_checkpoints",
                         tuple(f"RewardGen bounded fold{i}" for i in range(FOLDS))))),
+            # 3× the optimizer steps: is RewardGen's gap to the Bayes reward (scripts/reward_gen_bayes.py) its budget?
+            Run("RewardGen bounded 12 epochs", (REWARD_GEN,), (*TPRL_SCALE, *BOUNDED, "--trainer.max_epochs", "12"),
+                evaluated=False, checkpoint="best", seeds=(0,)),
+            Run("ICRG bounded 12 epochs in-sample labels TD", icrg, (*TPRL_SCALE, *DIT_TD),
+                needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded 12 epochs",)),), seeds=(0,)),
             Run("DP2T", ("configs/dp2t_darkroom_tprl.yaml",), TPRL_SCALE))
 
 
