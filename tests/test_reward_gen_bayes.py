@@ -67,7 +67,7 @@ def test_label_likelihood_follows_the_label():
     post = reward_gen_bayes.posteriors(pair, SIZE, 1.0, p_optimal=0.5)
     for p in post.values():
         np.testing.assert_allclose(p.sum(1), 1.0)
-    # a winner that stays on its own cell and a loser that walks to another: the pair's posterior prefers the winner's
+    # the label (ξ_a preferred) moves posterior mass toward the cell ξ_a walks to and stays on
     assert post["pair"][0, g_a] > post["trajectories"][0, g_a]
 
 
