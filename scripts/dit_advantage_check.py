@@ -10,8 +10,9 @@ scored with the other as context, exactly as in training (``swap_roles``). An ac
 is its *progress*: r_h − r_{h−1}, how much closer step h brought the hand to the goal (Reach's latent
 reward is −‖tcp − goal‖ after the step). DIT on true rewards reads its context's rewards; ICRG reads
 RewardGen's labels r̂ of the same trajectories (the two datasets hold the same states and actions, same
-seed). Prints JSON: the Pearson correlation of progress with Â (each model's Q̂ − V̂, and the one-step TD
-error of its V̂: ``advantage: td``) and with r̂ (ICRG's), and of r̂ with the true per-step reward.
+seed). Prints JSON: the Pearson correlation of progress with Â (each model's Q̂ − V̂, the one-step TD
+error of its V̂: ``advantage: td``, and the return-to-go over its V̂: ``advantage: return_to_go``) and with
+r̂ (ICRG's), and of r̂ with the true per-step reward.
 Advantages that do not correlate with progress make the exp(Â/η)-weighted loss a plain behavior clone.
 """
 
@@ -28,7 +29,7 @@ from icprl_lightning.data.batches import other_rows, to_tensor
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.methods.dit import DITModule, swap_roles
 from icprl_lightning.methods.icrg import ICRGModule
-from icprl_lightning.methods.losses import td_advantages
+from icprl_lightning.methods.losses import return_to_go_advantages, td_advantages
 
 TRAJECTORY = ("states_a", "actions_a", "states_b", "actions_b")
 
@@ -37,13 +38,15 @@ def correlation(x: torch.Tensor, y: torch.Tensor) -> float:
     return float(np.corrcoef(x.flatten().numpy(), y.flatten().numpy())[0, 1])
 
 
-def advantages(module: DITModule, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Q̂ − V̂, V̂'s one-step TD error and the rewards the module saw, for every step of the scored trajectories
-    ([ξ_b; ξ_a] rows)."""
+def advantages(module: DITModule, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Q̂ − V̂, V̂'s one-step TD error, the return-to-go over V̂ and the rewards the module saw, for every step of
+    the scored trajectories ([ξ_b; ξ_a] rows)."""
     with torch.no_grad():
         context, scored = swap_roles(*module.labeled_trajectories(batch))
         q, v = module.values(context, scored)
-    return q - v, td_advantages(v, scored.rewards, module.hparams.gamma), scored.rewards
+    gamma = module.hparams.gamma
+    return {"q_minus_v": q - v, "td": td_advantages(v, scored.rewards, gamma),
+            "return_to_go": return_to_go_advantages(v, scored.rewards, gamma), "rewards": scored.rewards}
 
 
 def main() -> None:
@@ -69,8 +72,8 @@ def main() -> None:
     if not (isinstance(dit, DITModule) and isinstance(icrg, ICRGModule)):
         raise ValueError(f"--dit must be a DIT and --icrg an ICRG checkpoint, got {type(dit).__name__} and "
                          f"{type(icrg).__name__}")
-    dit_adv, dit_td, reward = advantages(dit, dit_batch)
-    icrg_adv, icrg_td, reward_hat = advantages(icrg, icrg_batch)
+    dit_a, icrg_a = advantages(dit, dit_batch), advantages(icrg, icrg_batch)
+    dit_adv, icrg_adv, reward, reward_hat = dit_a["q_minus_v"], icrg_a["q_minus_v"], dit_a["rewards"], icrg_a["rewards"]
     progress = reward[:, 1:] - reward[:, :-1]  # step h ≥ 1: distance before it minus distance after it
     # the arm follows its mocap target with a lag: also the progress of the step after the action
     lagged = progress[:, 1:]
@@ -80,8 +83,10 @@ def main() -> None:
         "corr_progress_vs_icrg_advantage": correlation(progress, icrg_adv[:, 1:]),
         "corr_next_progress_vs_dit_advantage": correlation(lagged, dit_adv[:, 1:-1]),
         "corr_next_progress_vs_icrg_advantage": correlation(lagged, icrg_adv[:, 1:-1]),
-        "corr_progress_vs_dit_td_advantage": correlation(progress, dit_td[:, 1:]),
-        "corr_progress_vs_icrg_td_advantage": correlation(progress, icrg_td[:, 1:]),
+        "corr_progress_vs_dit_td_advantage": correlation(progress, dit_a["td"][:, 1:]),
+        "corr_progress_vs_icrg_td_advantage": correlation(progress, icrg_a["td"][:, 1:]),
+        "corr_progress_vs_dit_return_to_go_advantage": correlation(progress, dit_a["return_to_go"][:, 1:]),
+        "corr_progress_vs_icrg_return_to_go_advantage": correlation(progress, icrg_a["return_to_go"][:, 1:]),
         "corr_progress_vs_reward_hat": correlation(progress, reward_hat[:, 1:]),
         "corr_true_reward_vs_reward_hat": correlation(reward, reward_hat),
     }, indent=2))

@@ -20,7 +20,8 @@ this prints per context quality:
 * ``policy_good_mass``: the trained policy's probability of a good action at the same states: what the clone
   achieved, against the target it was given;
 * the weighted fraction and the AUC with ``td_``: Â = V̂'s one-step TD error (``advantage: td``,
-  ``losses.td_advantages``) from the checkpoint's own V̂, whichever form it was trained with.
+  ``losses.td_advantages``), and with ``rtg_``: Â = the return-to-go over V̂ (``advantage: return_to_go``,
+  ``losses.return_to_go_advantages``), each from the checkpoint's own V̂, whichever form it was trained with.
 
 Each checkpoint reads the data of its own run (``config.yaml`` beside ``checkpoints/``), so the
 ``trajectories_per_task`` override of a reproduce table is honoured. Several ``--ckpt`` are training
@@ -43,7 +44,7 @@ from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.darkroom.env import step_reward, transition
 from icprl_lightning.methods.dit import DITModule, swap_roles
-from icprl_lightning.methods.losses import standardized_advantages, td_advantages
+from icprl_lightning.methods.losses import return_to_go_advantages, standardized_advantages, td_advantages
 from icprl_lightning.metrics import mean_sem_or_none
 
 
@@ -97,7 +98,8 @@ def measure(checkpoint: Path) -> dict[str, dict[str, float]]:
         q, v = module.values(context, scored)
         visible = torch.full((scored.states.shape[1],), context.states.shape[1])
         policy = module.policy(context, scored.states, visible).softmax(-1).numpy()  # T^R(· | s_h, D), (2N, H, A)
-    forms = {"": q - v, "td_": td_advantages(v, scored.rewards, hp.gamma)}  # the paper's Q̂ − V̂; V̂'s TD error
+    forms = {"": q - v, "td_": td_advantages(v, scored.rewards, hp.gamma),  # the paper's Q̂ − V̂; V̂'s TD error;
+             "rtg_": return_to_go_advantages(v, scored.rewards, hp.gamma)}  # the return-to-go over V̂
     goals = dm.family.train_goals[np.asarray(val["task_index"])].astype(np.int64)
     good = np.concatenate([good_actions(np.asarray(val[f"states_{s}"]), np.asarray(val[f"actions_{s}"]), goals,
                                         dm.family.size, val.get(f"rewards_{s}")) for s in "ba"])
@@ -128,8 +130,8 @@ def main() -> None:
     parser.add_argument("--json", type=Path, help="also write the per-checkpoint measures and their summary")
     args = parser.parse_args()
     per_ckpt = {str(c): measure(c) for c in args.ckpt}
-    measures = ("good_fraction", "weighted_good_fraction", "td_weighted_good_fraction", "policy_good_mass", "auc",
-                "td_auc")
+    measures = ("good_fraction", "weighted_good_fraction", "td_weighted_good_fraction", "rtg_weighted_good_fraction",
+                "policy_good_mass", "auc", "td_auc", "rtg_auc")
     summary = {}
     for q in QUALITIES:
         for m in measures:

@@ -51,6 +51,7 @@ def test_measure_reads_a_fitted_dit_run(tmp_path, monkeypatch):
     assert out and set(out) <= {"low", "medium", "high"}  # the qualities the validation rows hold
     for row in out.values():
         assert 0 <= row["good_fraction"] <= 1 and 0 <= row["policy_good_mass"] <= 1 and row["steps"] > 0
-        for key in ("weighted_good_fraction", "auc", "td_weighted_good_fraction", "td_auc"):
+        for key in ("weighted_good_fraction", "auc", "td_weighted_good_fraction", "td_auc",
+                    "rtg_weighted_good_fraction", "rtg_auc"):
             assert row[key] is None if key.endswith("auc") and row["good_fraction"] in (0, 1) else 0 <= row[key] <= 1
     assert dit_weight_quality.auc(np.arange(3.0), np.ones(3, bool)) is None  # no bad action to rank against

@@ -11,12 +11,14 @@ from factories import cli_data_args, darkroom_data  # noqa: E402
 from icprl_lightning import TrajectoryPreferenceContext, load_agent
 from icprl_lightning.cli import run_cli
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
-from icprl_lightning.methods.dit import DITModule, discounted_returns, swap_roles
+from icprl_lightning.methods.dit import DITModule, swap_roles
 from icprl_lightning.methods.dpt import DP2TModule
 from icprl_lightning.methods.icrg import ICRGAgent, ICRGModule
 from icprl_lightning.methods.losses import (
     advantage_weighted_loss,
+    discounted_returns,
     dit_value_loss,
+    return_to_go_advantages,
     standardized_advantages,
     td_advantages,
     trajectory_preference_loss,
@@ -79,6 +81,17 @@ def test_td_advantages_read_the_next_state_value_and_stop_at_the_horizon():
     gamma = 0.9  # (1 − γ) r_h + γ V̂(s_{h+1}) − V̂(s_h), V̂ = 0 after the last step
     expected = [0.9 * 0.5 - 0.2, 0.1 * 1.0 + 0.9 * 0.1 - 0.5, 0.1 * 2.0 - 0.1]
     assert td_advantages(v, r, gamma)[0].tolist() == pytest.approx(expected, rel=1e-6)
+
+
+def test_return_to_go_advantages_subtract_v_from_the_scaled_return_and_ignore_its_neighbours():
+    v = torch.tensor([[0.2, 0.5, 0.1]])
+    r = torch.tensor([[0.0, 1.0, 2.0]])
+    gamma = 0.5  # G = [0 + 0.5 + 0.5, 1 + 1, 2] = [1, 2, 2]; (1 − γ) G − V̂
+    expected = [0.5 * 1 - 0.2, 0.5 * 2 - 0.5, 0.5 * 2 - 0.1]
+    assert return_to_go_advantages(v, r, gamma)[0].tolist() == pytest.approx(expected, rel=1e-6)
+    # unlike the TD error, V̂ at the next state does not enter: a step's advantage moves only with its own V̂
+    shifted = v + torch.tensor([[0.0, 3.0, 0.0]])
+    assert return_to_go_advantages(shifted, r, gamma)[0, [0, 2]].tolist() == pytest.approx([0.3, 0.9], rel=1e-6)
 
 
 # ---- modules -------------------------------------------------------------------------------------
@@ -152,6 +165,19 @@ def test_dit_td_advantages_come_from_v_alone_and_train_only_the_policy(tprl_rewa
     moved = _step_and_compare(model, batch)
     for name, m in moved.items():
         assert m == name.startswith("policy"), name
+
+
+def test_dit_return_to_go_advantages_come_from_v_and_the_scored_rewards(tprl_rewards):
+    torch.manual_seed(0)
+    model = DITModule(**ENV, **SIZES, value_epochs=0, advantage="return_to_go")
+    batch = next(iter(tprl_rewards.train_dataloader()))
+    context, scored = swap_roles(*model.labeled_trajectories(batch))
+    with torch.no_grad():
+        expected = return_to_go_advantages(model.v_value(context, scored.states), scored.rewards, model.hparams.gamma)
+        model.q_value.apply(lambda m: [p.add_(1.0) for p in m.parameters(recurse=False)])  # Q̂ must not matter
+        torch.testing.assert_close(model.advantages(context, scored), expected)
+    with pytest.raises(ValueError, match="advantage"):
+        DITModule(**ENV, **SIZES, advantage="monte_carlo")
 
 
 def test_dit_on_continuous_actions_weights_the_gaussian_mean_likelihood():

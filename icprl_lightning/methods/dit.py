@@ -29,6 +29,12 @@ behavior's good actions from its bad ones (AUC ≈ 0.5, ``scripts/dit_weight_qua
 regressions of the same noisy return whose difference is mostly their errors, while the TD error sees the
 action's effect in the next state.
 
+``advantage: return_to_go`` is AWR's Monte Carlo advantage (1 − γ) G_h − V̂(s_h): the return this trajectory
+actually collected after the action, against V̂'s estimate for the state (``losses.return_to_go_advantages``).
+V̂ only serves as a baseline here, so its errors shift every action of a state alike and cannot reorder them;
+the TD error instead needs V̂(s_{h+1}) − V̂(s_h) to resolve one action's effect, which on Reach (a 1 cm move
+per step) is below V̂'s error.
+
 This module is DIT on true rewards, the reward-supervised baseline (``reward_trajectory`` data); ICRG
 (``methods/icrg.py``) is the same on rewards labeled by RewardGen.
 """
@@ -42,22 +48,18 @@ from icprl_lightning.contexts import RewardTrajectoryContext
 from icprl_lightning.methods.base import InContextModule
 from icprl_lightning.methods.losses import (
     advantage_weighted_loss,
+    discounted_returns,
     dit_value_loss,
+    return_to_go_advantages,
     standardized_advantages,
     td_advantages,
 )
 from icprl_lightning.models.estimator import InContextEstimator
 from icprl_lightning.validation import check_choice, check_int, check_interval, check_positive
 
-# Â = Q̂ − V̂ (paper eq. dit-advantage), or "td": r_h + γ V̂(s_{h+1}) − V̂(s_h) (losses.td_advantages)
-ADVANTAGES = ("q_minus_v", "td")
-
-
-def discounted_returns(rewards: Tensor, gamma: float) -> Tensor:
-    """G_h = Σ_{h' ≥ h} γ^{h'−h} r_{h'} along the last axis: rewards (..., H) -> (..., H)."""
-    steps = torch.arange(rewards.shape[-1], device=rewards.device)
-    lag = (steps[:, None] - steps[None, :]).to(rewards.dtype)  # (h', h) -> h' − h
-    return rewards @ torch.where(lag >= 0, gamma ** lag.clamp(min=0), 0.0)
+# Â = Q̂ − V̂ (paper eq. dit-advantage); "td": r_h + γ V̂(s_{h+1}) − V̂(s_h) (losses.td_advantages);
+# "return_to_go": G_h − V̂(s_h) (losses.return_to_go_advantages)
+ADVANTAGES = ("q_minus_v", "td", "return_to_go")
 
 
 def swap_roles(a: RewardTrajectoryContext, b: RewardTrajectoryContext
@@ -112,9 +114,12 @@ class DITModule(InContextModule):
         return self.q_value(context, scored.states, scored.actions), self.v_value(context, scored.states)
 
     def advantages(self, context: RewardTrajectoryContext, scored: RewardTrajectoryContext) -> Tensor:
-        """Â for every step of ``scored`` before normalization -> (B, H): Q̂ − V̂, or V̂'s one-step TD error."""
+        """Â for every step of ``scored`` before normalization -> (B, H): Q̂ − V̂, V̂'s one-step TD error, or the
+        return-to-go over V̂."""
         if self.hparams.advantage == "td":
             return td_advantages(self.v_value(context, scored.states), scored.rewards, self.hparams.gamma)
+        if self.hparams.advantage == "return_to_go":
+            return return_to_go_advantages(self.v_value(context, scored.states), scored.rewards, self.hparams.gamma)
         q, v = self.values(context, scored)
         return q - v
 

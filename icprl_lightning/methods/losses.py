@@ -64,6 +64,19 @@ def dit_value_loss(q_values: Tensor, v_values: Tensor, returns: Tensor) -> Tenso
     return (q_values - returns).pow(2).mean() + (v_values - returns).pow(2).mean()
 
 
+def discounted_returns(rewards: Tensor, gamma: float) -> Tensor:
+    """G_h = Σ_{h' ≥ h} γ^{h'−h} r_{h'} along the last axis: rewards (..., H) -> (..., H)."""
+    steps = torch.arange(rewards.shape[-1], device=rewards.device)
+    lag = (steps[:, None] - steps[None, :]).to(rewards.dtype)  # (h', h) -> h' − h
+    return rewards @ torch.where(lag >= 0, gamma ** lag.clamp(min=0), 0.0)
+
+
+def return_to_go_advantages(v_values: Tensor, rewards: Tensor, gamma: float) -> Tensor:
+    """(1 − γ) G_h − V̂(s_h) along the last axis, (..., H) -> (..., H): AWR's Monte Carlo advantage, with G_h the
+    discounted return-to-go truncated at the horizon, in the value loss's (1 − γ)-scaled units."""
+    return ((1 - gamma) * discounted_returns(rewards, gamma) - v_values).detach()
+
+
 def td_advantages(v_values: Tensor, rewards: Tensor, gamma: float) -> Tensor:
     """(1 − γ) r_h + γ V̂(s_{h+1}) − V̂(s_h) along the last axis, (..., H) -> (..., H), V̂ = 0 after the last step
     (the returns are truncated there). V̂ is in the value loss's (1 − γ)-scaled units, hence the (1 − γ) r_h."""

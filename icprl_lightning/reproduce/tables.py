@@ -86,6 +86,8 @@ DIT_PICK = ("--model.init_args.eta", "1.0", "--model.init_args.gamma", "0.95")
 DIT_G099 = ("--model.init_args.eta", "1.0", "--model.init_args.gamma", "0.99")
 # Â as V̂'s one-step TD error instead of Q̂ − V̂ (methods/dit.py; scripts/dit_weight_quality.py says why), at the pick
 DIT_TD = (*DIT_PICK, "--model.init_args.advantage", "td")
+# Â as the return-to-go over V̂ (AWR's Monte Carlo advantage: V̂ only a baseline, its errors cannot reorder actions)
+DIT_RTG = (*DIT_PICK, "--model.init_args.advantage", "return_to_go")
 # RewardGen's per-step rewards bounded to DarkRoom's [0, 1] (methods/reward_gen.py): scripts/reward_gen_bayes.py
 # shows one pair identifies the goal, so the unbounded r̂'s weak correlation is the objective's, not the data's
 BOUNDED = ("--model.init_args.reward_range", "[0, 1]")
@@ -154,6 +156,20 @@ def _reach_tprl_runs() -> tuple[Run, ...]:
             Run("ICRG", ("configs/icrg_metaworld.yaml", SAC_ORACLE), REACH_TPRL_PAIRS, needs=(stage1,)),
             Run("DIT true rewards", ("configs/dit_metaworld.yaml", SAC_ORACLE), REACH_TPRL_PAIRS),
             Run("DP2T", ("configs/dp2t_metaworld_tprl.yaml", SAC_ORACLE), REACH_TPRL_PAIRS))
+
+
+def _reach_advantage_runs() -> tuple[Run, ...]:
+    """DIT on true rewards with each advantage (issue 17, point 3 on Reach), and ICRG with the return-to-go."""
+    def advantage(kind: str) -> tuple[str, ...]:
+        return (*REACH_TPRL_PAIRS, "--model.init_args.advantage", kind)
+    dit = ("configs/dit_metaworld.yaml", SAC_ORACLE)
+    return (Run("DIT true rewards", dit, REACH_TPRL_PAIRS),
+            Run("DIT true rewards TD", dit, advantage("td")),
+            Run("DIT true rewards return-to-go", dit, advantage("return_to_go")),
+            Run("RewardGen", ("configs/reward_gen_metaworld.yaml", SAC_ORACLE), REACH_TPRL_PAIRS, evaluated=False,
+                checkpoint="best"),
+            Run("ICRG return-to-go", ("configs/icrg_metaworld.yaml", SAC_ORACLE), advantage("return_to_go"),
+                needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen",)),)))
 
 
 # Meta-World Reach I-PRL (issue 13): the paper's recipe (the configs as they are: the committed SAC oracle) and
@@ -241,6 +257,13 @@ TABLES = {t.name: t for t in (
                (*TPRL_SCALE, *DIT_TD, "--trainer.max_epochs", "8")),),
           contexts=("own", "other_task"),
           budget="≈ 12 min per fit on 1 idle core (2,400 steps; the data from darkroom_tprl)"),
+    Table("darkroom_return_to_go", "DarkRoom T-PRL (600 pairs per goal): DIT and ICRG (bounded RewardGen, "
+          "in-sample labels) with the return-to-go over V̂ as advantage (darkroom_tprl has the TD and Q̂ − V̂ rows)",
+          (Run("DIT true rewards return-to-go", ("configs/dit_darkroom.yaml",), (*TPRL_SCALE, *DIT_RTG)),
+           Run("RewardGen bounded", (REWARD_GEN,), (*TPRL_SCALE, *BOUNDED), evaluated=False, checkpoint="best"),
+           Run("ICRG bounded in-sample labels return-to-go", ("configs/icrg_darkroom.yaml",), (*TPRL_SCALE, *DIT_RTG),
+               needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen bounded",)),))),
+          budget="≈ 5–8 min per fit on 1 core; ICRG after its RewardGen"),
     Table("darkroom_tprl", "DarkRoom T-PRL (600 pairs per goal): ICRG's stages against their oracles, DP²T",
           _tprl_runs(),
           budget="≈ 3–8 min per fit with 3–4 jobs on the 2 cores (3 December); 8 runs × seeds, each ICRG after "
@@ -266,6 +289,11 @@ TABLES = {t.name: t for t in (
           evaluations=(Evaluation("", ("--greedy",)),),
           baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
           budget="≈ 25–30 min per fit on 1 core of 2 busy ones (the data from metaworld_tprl_sac)"),
+    Table("metaworld_dit_advantages", "DIT on true rewards, Meta-World Reach T-PRL (metaworld_tprl_sac's data): "
+          "the paper's Q̂ − V̂ against V̂'s TD error and the return-to-go over V̂ (AWR's), and ICRG on the latter",
+          _reach_advantage_runs(), evaluations=(Evaluation("", ("--greedy",)),),
+          baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
+          budget="≈ 15–30 min per fit on 1 core (the data from metaworld_tprl_sac)"),
     Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
           evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS,
           eval_seeds=(0,), budget="≈ 2–4 min per fit on 1 core"),
