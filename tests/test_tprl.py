@@ -153,13 +153,14 @@ def test_dit_phases_update_only_their_networks(tprl_rewards, value_epochs, learn
         assert m == name.startswith(learns), name
 
 
-def test_dit_td_advantages_come_from_v_alone_and_train_only_the_policy(tprl_rewards):
+@pytest.mark.parametrize("advantage, form", [("td", td_advantages), ("return_to_go", return_to_go_advantages)])
+def test_dit_v_advantages_come_from_v_alone_and_train_only_the_policy(tprl_rewards, advantage, form):
     torch.manual_seed(0)
-    model = DITModule(**ENV, **SIZES, value_epochs=0, advantage="td")
+    model = DITModule(**ENV, **SIZES, value_epochs=0, advantage=advantage)
     batch = next(iter(tprl_rewards.train_dataloader()))
     context, scored = swap_roles(*model.labeled_trajectories(batch))
     with torch.no_grad():
-        expected = td_advantages(model.v_value(context, scored.states), scored.rewards, model.hparams.gamma)
+        expected = form(model.v_value(context, scored.states), scored.rewards, model.hparams.gamma)
         model.q_value.apply(lambda m: [p.add_(1.0) for p in m.parameters(recurse=False)])  # Q̂ must not matter
         torch.testing.assert_close(model.advantages(context, scored), expected)
     moved = _step_and_compare(model, batch)
@@ -167,15 +168,7 @@ def test_dit_td_advantages_come_from_v_alone_and_train_only_the_policy(tprl_rewa
         assert m == name.startswith("policy"), name
 
 
-def test_dit_return_to_go_advantages_come_from_v_and_the_scored_rewards(tprl_rewards):
-    torch.manual_seed(0)
-    model = DITModule(**ENV, **SIZES, value_epochs=0, advantage="return_to_go")
-    batch = next(iter(tprl_rewards.train_dataloader()))
-    context, scored = swap_roles(*model.labeled_trajectories(batch))
-    with torch.no_grad():
-        expected = return_to_go_advantages(model.v_value(context, scored.states), scored.rewards, model.hparams.gamma)
-        model.q_value.apply(lambda m: [p.add_(1.0) for p in m.parameters(recurse=False)])  # Q̂ must not matter
-        torch.testing.assert_close(model.advantages(context, scored), expected)
+def test_dit_rejects_an_unknown_advantage():
     with pytest.raises(ValueError, match="advantage"):
         DITModule(**ENV, **SIZES, advantage="monte_carlo")
 
