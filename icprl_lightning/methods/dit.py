@@ -33,7 +33,8 @@ action's effect in the next state.
 actually collected after the action, against V̂'s estimate for the state (``losses.return_to_go_advantages``).
 V̂ only serves as a baseline here, so its errors shift every action of a state alike and cannot reorder them;
 the TD error instead needs V̂(s_{h+1}) − V̂(s_h) to resolve one action's effect, which on Reach (a 1 cm move
-per step) is below V̂'s error.
+per step) is below V̂'s error. Measured (docs/RESULTS.md): on Reach it is within noise of Q̂ − V̂; on DarkRoom it
+ranks single actions worse than the TD error but makes greedy ICRG on bounded rewards steadier.
 
 This module is DIT on true rewards, the reward-supervised baseline (``reward_trajectory`` data); ICRG
 (``methods/icrg.py``) is the same on rewards labeled by RewardGen.
