@@ -59,7 +59,7 @@ from icprl_lightning.models.estimator import InContextEstimator
 from icprl_lightning.validation import check_choice, check_int, check_interval, check_positive
 
 # Â = Q̂ − V̂ (paper eq. dit-advantage); "td": r_h + γ V̂(s_{h+1}) − V̂(s_h) (losses.td_advantages);
-# "return_to_go": G_h − V̂(s_h) (losses.return_to_go_advantages)
+# "return_to_go": (1 − γ) G_h − V̂(s_h) (losses.return_to_go_advantages)
 ADVANTAGES = ("q_minus_v", "td", "return_to_go")
 
 
