@@ -254,6 +254,28 @@ def test_config_runs_under_fast_dev_run(config, root, tmp_path):
     assert "val/metaworld/high/success" in metrics and "val/metaworld/high/behavior_return" in metrics
 
 
+@pytest.mark.slow  # a fit and rollouts on both contexts
+def test_dit_train_goal_check_deploys_on_training_goals_with_own_and_other_contexts(root, tmp_path):
+    """scripts/dit_train_goal_check.py: the training goals' validation contexts, normalized per training goal."""
+    import sys
+
+    sys.path.insert(0, str(REPO / "scripts"))
+    import dit_train_goal_check
+
+    cli = _fast_dev_run("configs/dit_metaworld.yaml", root, tmp_path)
+    path = tmp_path / "dit.ckpt"
+    cli.trainer.save_checkpoint(path)
+    suite = dit_train_goal_check.training_goal_suite(cli.datamodule, reference_episodes=2, seed=0)
+    tasks = np.asarray(cli.datamodule.load()["val"]["task_index"])
+    assert suite.task_index.tolist() == tasks.tolist() and len(tasks) == 3 * TINY["val_trajectories_per_task"]
+    assert suite.context.rewards.shape == (len(tasks), H)
+    out = dit_train_goal_check.evaluate(suite, [str(path), str(path)], seeds=[0], greedy=True)
+    assert set(out) == {"own", "other_task"}
+    for row in out.values():
+        assert row["training_seeds"] == 2 and np.isfinite(row["normalized_return"])
+        assert row["per_seed"]["return"][0] == pytest.approx(row["per_seed"]["return"][1])  # same checkpoint twice
+
+
 def test_icrg_config_runs_and_its_checkpoint_deploys(root, reward_gen_ckpt, tmp_path):
     cli = _fast_dev_run("configs/icrg_metaworld.yaml", root, tmp_path,
                         f"--model.init_args.reward_gen_checkpoint={reward_gen_ckpt}")
