@@ -291,6 +291,14 @@ TABLES = {t.name: t for t in (
           _reach_advantage_runs(), evaluations=(Evaluation("", ("--greedy",)),),
           baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
           budget="≈ 15–30 min per fit on 1 core (the data from metaworld_tprl_sac)"),
+    Table("metaworld_dpt_context_source", "Meta-World Reach, the paper's recipe: can DPT read the goal from its "
+          "context's rewards? DPT trained on reward contexts of SAC's 50% checkpoint (DIT's data policy) or of the "
+          "20/40/80% ones in turn, instead of the converged policy's",
+          (Run("DPT 50% contexts", ("configs/dpt_metaworld.yaml",),
+               ("--data.init_args.setting.init_args.pretraining_target", "0.5")),
+           Run("DPT mixed contexts", ("configs/dpt_metaworld.yaml", "configs/overlays/dpt_mixed_contexts.yaml"))),
+          evaluations=(Evaluation("", ("--greedy",)),), contexts=("other_task",),
+          budget="≈ 10–20 min per fit on 1 core"),
     Table("bandit", "Linear dueling bandits: ICPO vs DTS", (Run("ICPO", ("configs/icpo_bandit.yaml",)),),
           evaluations=(Evaluation("", ()),), contexts=ALL_CONTEXTS,
           eval_seeds=(0,), budget="≈ 2–4 min per fit on 1 core"),
