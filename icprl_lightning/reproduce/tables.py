@@ -291,6 +291,14 @@ TABLES = {t.name: t for t in (
           _reach_advantage_runs(), evaluations=(Evaluation("", ("--greedy",)),),
           baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
           budget="≈ 15–30 min per fit on 1 core (the data from metaworld_tprl_sac)"),
+    Table("metaworld_dit_eta", "Meta-World Reach T-PRL (metaworld_tprl_sac's data): DIT on true rewards with the "
+          "return-to-go advantage at sharper weights exp(Â/η), η = 0.3 and 0.1 (the configs' η = 1 is in "
+          "metaworld_dit_advantages): does a policy that imitates only the better actions learn to read its context?",
+          tuple(Run(f"DIT return-to-go eta{eta}", ("configs/dit_metaworld.yaml", SAC_ORACLE),
+                    (*REACH_TPRL_PAIRS, "--model.init_args.advantage", "return_to_go", "--model.init_args.eta", eta))
+                for eta in ("0.3", "0.1")),
+          evaluations=(Evaluation("", ("--greedy",)),), contexts=("other_task",),
+          budget="≈ 10–20 min per fit on 1 core (the data from metaworld_tprl_sac)"),
     Table("metaworld_dpt_context_source", "Meta-World Reach, the paper's recipe: can DPT read the goal from its "
           "context's rewards? DPT trained on reward contexts of SAC's 50% checkpoint (DIT's data policy) or of the "
           "20/40/80% ones in turn, instead of the converged policy's",
