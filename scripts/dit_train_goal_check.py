@@ -44,6 +44,9 @@ def training_goal_suite(dm, reference_episodes: int, seed: int) -> EvalSuite:
     arrays = {k: to_tensor(np.asarray(val[k])) for k in ("states_a", "actions_a", "rewards_a")}
     tasks = np.asarray(val["task_index"])
     refs = family.references(train, {}, reference_episodes, np.random.default_rng(seed))
+    if "test_reference_per_task" not in refs:
+        raise SystemExit(f"{type(family).__name__}.references gives no per-task uniform and expert returns; this check "
+                         "normalizes each training goal by its own (Meta-World Reach does)")
     info = {"test_reference_per_task": refs["test_reference_per_task"]}
     return EvalSuite(env_name=family.metric_env, quality="pretraining",
                      context=dm.setting.eval_context({"behavior_states": arrays["states_a"],
