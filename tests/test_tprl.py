@@ -11,7 +11,7 @@ from factories import cli_data_args, darkroom_data  # noqa: E402
 from icprl_lightning import TrajectoryPreferenceContext, load_agent
 from icprl_lightning.cli import run_cli
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
-from icprl_lightning.methods.dit import DITModule, swap_roles
+from icprl_lightning.methods.dit import DITModule, swap_roles, unexplained_variance
 from icprl_lightning.methods.dpt import DP2TModule
 from icprl_lightning.methods.icrg import ICRGAgent, ICRGModule
 from icprl_lightning.methods.losses import (
@@ -168,6 +168,52 @@ def test_dit_v_advantages_come_from_v_alone_and_train_only_the_policy(tprl_rewar
         assert m == name.startswith("policy"), name
 
 
+def test_unexplained_variance_by_hand():
+    targets = torch.tensor([0.0, 1.0, 2.0, 3.0])  # variance 1.25
+    assert unexplained_variance(targets.mean().expand(4), targets).item() == pytest.approx(1.0)
+    assert unexplained_variance(targets + 0.5, targets).item() == pytest.approx(0.25 / 1.25)
+
+
+@pytest.mark.parametrize("value_epochs", [1, 0])
+def test_dit_value_auxiliary_trains_the_policy_in_both_phases(tprl_rewards, value_epochs):
+    """The auxiliary return-to-go head sits on the policy's transformer: it moves the policy in the value phase too,
+    and adds 1 − R² of its prediction, times value_auxiliary, to the phase's loss."""
+    torch.manual_seed(0)
+    batch = next(iter(tprl_rewards.train_dataloader()))
+    model = DITModule(**ENV, **SIZES, value_epochs=value_epochs, value_auxiliary=2.0)
+    loss, metrics = model.loss(batch)
+    plain = DITModule(**ENV, **SIZES, value_epochs=value_epochs)
+    plain.load_state_dict({k: v for k, v in model.state_dict().items() if not k.startswith("policy_value_head")})
+    torch.testing.assert_close(loss, plain.loss(batch)[0] + 2.0 * metrics["policy_value_loss"])
+    moved = _step_and_compare(model, batch)
+    learns = ("q_value", "v_value", "policy") if value_epochs else ("policy",)
+    for name, m in moved.items():  # in the value phase the action head has no loss yet
+        assert m == (name.startswith(learns) and not (value_epochs and name.startswith("policy.head"))), name
+    assert moved["policy_value_head.weight"] and moved["policy.transformer.blocks.0.attn.qkv.weight"]
+
+
+def test_dit_rejects_a_negative_value_auxiliary():
+    with pytest.raises(ValueError, match="value_auxiliary"):
+        DITModule(**ENV, **SIZES, value_auxiliary=-1.0)
+
+
+def test_dit_context_reading_compares_the_own_context_with_another_tasks(tprl_rewards):
+    torch.manual_seed(0)
+    model = DITModule(**ENV, **SIZES, value_epochs=0)
+    batch = next(iter(tprl_rewards.val_dataloader()))
+    reading = model.context_reading(batch)
+    assert set(reading) == {"value_loss_own_context", "value_loss_other_task", "log_likelihood_own_context",
+                            "log_likelihood_other_task"}
+    context, scored = swap_roles(*model.labeled_trajectories(batch))
+    task = torch.cat([batch["task"], batch["task"]])
+    keep = torch.roll(task, 1) != task
+    torch.testing.assert_close(reading["log_likelihood_own_context"],
+                               model.log_likelihood(context, scored)[keep].mean())
+    assert reading["log_likelihood_own_context"] != reading["log_likelihood_other_task"]
+    same_task = dict(batch, task=torch.zeros_like(batch["task"]))
+    assert model.context_reading(same_task) == {}
+
+
 def test_dit_rejects_an_unknown_advantage():
     with pytest.raises(ValueError, match="advantage"):
         DITModule(**ENV, **SIZES, advantage="monte_carlo")
@@ -270,7 +316,8 @@ def test_icrg_checkpoint_deploys_alone_and_labels_the_behavior_trajectory(tprl, 
 
 def test_dp2t_and_dit_checkpoints_deploy_on_their_contexts(tprl, tprl_rewards, tmp_path):
     for model, dm in ((DP2TModule(**ENV, **SIZES, context_kind="trajectory_preference"), tprl),
-                      (DITModule(**ENV, **SIZES, value_epochs=0), tprl_rewards)):
+                      (DITModule(**ENV, **SIZES, value_epochs=0), tprl_rewards),
+                      (DITModule(**ENV, **SIZES, value_epochs=0, value_auxiliary=1.0), tprl_rewards)):
         agent = load_agent(_fit_and_save(model, dm, tmp_path / "m.ckpt"), seed=0)
         # each method's own default: DP²T acts by its argmax, DIT samples from T^R (the paper's deployment)
         assert agent.greedy == isinstance(model, DP2TModule)

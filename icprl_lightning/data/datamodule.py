@@ -275,6 +275,10 @@ class PreferenceDataModule(L.LightningDataModule):
         fields += [f for f in LABEL_FIELDS if self.query_labels and f not in fields]
         return {"train": fields, "val": fields}
 
+    def batch_fields(self) -> tuple[str, ...]:
+        """The fields a training batch is made of (as ``RecordedPreferenceDataModule.batch_fields``)."""
+        return tuple(self.required_fields()["train"])
+
     def _read(self, verify: bool) -> StoredDataset:
         return load_dataset(self.path, self.generator_config(), verify=verify, regenerate_hint=self.regenerate_hint)
 

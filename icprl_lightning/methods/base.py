@@ -13,8 +13,9 @@ import torch
 from torch import Tensor
 
 from icprl_lightning.contexts import ActionSpec, context_from_batch
+from icprl_lightning.models.normalization import InputNormalizer
 from icprl_lightning.models.policy import InContextPolicy
-from icprl_lightning.validation import check_int, check_kind, check_sizes, check_transformer
+from icprl_lightning.validation import check_choice, check_int, check_kind, check_sizes, check_transformer
 
 
 class InContextModule(L.LightningModule):
@@ -30,19 +31,38 @@ class InContextModule(L.LightningModule):
 
     def __init__(self, context_kind: str, state_dim: int, action_dim: int, discrete: bool, max_context: int,
                  n_layer: int = 3, n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, queries_per_context: int | None = None) -> None:
+                 weight_decay: float = 0.0, queries_per_context: int | None = None, normalize_inputs: bool = False
+                 ) -> None:
         owner = type(self).__name__
         check_kind(owner, "context_kind", context_kind)
         check_sizes(owner, state_dim, action_dim)
         check_transformer(owner, n_layer, n_embd, n_head, dropout, lr, weight_decay, max_context)
         if queries_per_context is not None:
             check_int(owner, "queries_per_context", queries_per_context, 1)
+        check_choice(owner, "normalize_inputs", normalize_inputs, (True, False))
         super().__init__()
         self.save_hyperparameters()
         self.context_kind = context_kind
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.policy = InContextPolicy(context_kind, state_dim, self.action_spec, n_layer, n_embd, n_head,
-                                      max_context, dropout)
+                                      max_context, dropout, normalize_inputs)
+
+    def on_fit_start(self) -> None:
+        """Fits every input normalizer that is not fitted yet on the fields of the DataModule's training split that
+        its batches serve (once: a resumed or fine-tuned fit keeps the checkpoint's statistics). Every rank reads the
+        whole split, so all agree."""
+        normalizers = [m for m in self.modules() if isinstance(m, InputNormalizer) and not m.fitted]
+        if not normalizers:
+            return
+        datamodule = self.trainer.datamodule
+        dataset = getattr(datamodule, "dataset", None)
+        if dataset is None or not hasattr(datamodule, "batch_fields"):
+            raise ValueError(f"{type(self).__name__}: normalize_inputs fits its statistics on the DataModule's stored "
+                             "training split (its ``dataset`` and ``batch_fields``), and this DataModule has none")
+        # only the fields the batches serve: a preference method must not see the scale of stored rewards
+        split = {k: dataset["train"][k] for k in datamodule.batch_fields()}
+        for normalizer in normalizers:
+            normalizer.fit(split)
 
     @property
     def consumes(self) -> tuple[str, ...]:

@@ -36,6 +36,23 @@ the TD error instead needs V̂(s_{h+1}) − V̂(s_h) to resolve one action's eff
 per step) is below V̂'s error. Measured (docs/RESULTS.md): on Reach it is within noise of Q̂ − V̂; on DarkRoom it
 ranks single actions worse than the TD error but makes greedy ICRG on bounded rewards steadier.
 
+``value_auxiliary`` c > 0 (our change, not the paper's) adds c · mean((v_θ(s_h | D) − (1 − γ) G_h)²) / var((1 − γ) G)
+(the batch's unexplained fraction of the return's variance, 1 − R², so that c weighs it against the policy loss at
+any reward scale) to every epoch's loss, v_θ a linear head on the *policy's* transformer outputs at its query
+tokens (``policy_value_head``, unused at deployment). On Reach the behavior's actions hardly depend on the goal, so
+imitating them, however weighted, gives the policy no reason to read its context (docs/RESULTS.md: the same return
+with another goal's context); predicting the return-to-go does, since the reward is the distance to the goal. The
+auxiliary regression makes the policy's own features carry the goal its action head can then use; the policy
+trains from the first epoch.
+
+``normalize_inputs`` standardizes states and rewards for the policy, Q̂ and V̂ with the training split's statistics
+(``models/normalization.py``; not the paper's).
+
+Validation also logs the value loss with the own context and with another task's in its place
+(``value_loss_own_context``, ``value_loss_other_task``; rows whose task is the same are left out) and the policy's
+log-likelihood of the behavior's actions under both (``log_likelihood_own_context``, ``log_likelihood_other_task``):
+how much of what Q̂, V̂ and T^R predict they read off the context.
+
 This module is DIT on true rewards, the reward-supervised baseline (``reward_trajectory`` data); ICRG
 (``methods/icrg.py``) is the same on rewards labeled by RewardGen.
 """
@@ -43,7 +60,7 @@ This module is DIT on true rewards, the reward-supervised baseline (``reward_tra
 from __future__ import annotations
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from icprl_lightning.contexts import RewardTrajectoryContext
 from icprl_lightning.methods.base import InContextModule
@@ -56,7 +73,7 @@ from icprl_lightning.methods.losses import (
     td_advantages,
 )
 from icprl_lightning.models.estimator import InContextEstimator
-from icprl_lightning.validation import check_choice, check_int, check_interval, check_positive
+from icprl_lightning.validation import check_choice, check_int, check_interval, check_nonnegative, check_positive
 
 # Â = Q̂ − V̂ (paper eq. dit-advantage); "td": r_h + γ V̂(s_{h+1}) − V̂(s_h) (losses.td_advantages);
 # "return_to_go": (1 − γ) G_h − V̂(s_h) (losses.return_to_go_advantages)
@@ -72,13 +89,19 @@ def swap_roles(a: RewardTrajectoryContext, b: RewardTrajectoryContext
     return cat(a, b), cat(b, a)
 
 
+def unexplained_variance(predictions: Tensor, targets: Tensor) -> Tensor:
+    """mean (prediction − target)² / var(target) over the batch: 1 − R², 1 for predicting the mean."""
+    return (predictions - targets).pow(2).mean() / (targets.var(unbiased=False).detach() + 1e-12)
+
+
 class DITModule(InContextModule):
     """DIT: Q̂, V̂ and the policy T^R(a | s, D^R), all conditioned on a reward trajectory (see module docstring)."""
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, gamma: float = 0.95,
                  eta: float = 1.0, max_weight: float = 20.0, value_epochs: int = 2, n_layer: int = 3,
                  n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, center_advantages: bool = True, advantage: str = "q_minus_v") -> None:
+                 weight_decay: float = 0.0, center_advantages: bool = True, advantage: str = "q_minus_v",
+                 value_auxiliary: float = 0.0, normalize_inputs: bool = False) -> None:
         owner = type(self).__name__
         check_interval(owner, "gamma", gamma, 0.0, 1.0)
         check_positive(owner, "eta", eta)
@@ -86,12 +109,15 @@ class DITModule(InContextModule):
         check_int(owner, "value_epochs", value_epochs, 0)
         check_choice(owner, "center_advantages", center_advantages, (True, False))
         check_choice(owner, "advantage", advantage, ADVANTAGES)
+        check_nonnegative(owner, "value_auxiliary", value_auxiliary)
         super().__init__("reward_trajectory", state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
-                         dropout, lr, weight_decay)
+                         dropout, lr, weight_decay, normalize_inputs=normalize_inputs)
         estimator = dict(context_kind="reward_trajectory", state_dim=state_dim, action_spec=self.action_spec,
-                         n_layer=n_layer, n_embd=n_embd, n_head=n_head, max_context=max_context, dropout=dropout)
+                         n_layer=n_layer, n_embd=n_embd, n_head=n_head, max_context=max_context, dropout=dropout,
+                         normalize_inputs=normalize_inputs)
         self.q_value = InContextEstimator(with_action=True, **estimator)
         self.v_value = InContextEstimator(with_action=False, **estimator)
+        self.policy_value_head = nn.Linear(n_embd, 1) if value_auxiliary > 0 else None
 
     def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None, compile: bool = False):
         """Samples a ~ T^R(· | s, D) by default, the paper's deployment: an advantage-weighted clone of the behavior
@@ -124,27 +150,74 @@ class DITModule(InContextModule):
         q, v = self.values(context, scored)
         return q - v
 
-    def log_likelihood(self, context: RewardTrajectoryContext, scored: RewardTrajectoryContext) -> Tensor:
-        """log T^R(a_h | s_h, D) for each step of ``scored`` -> (B, H); −‖a − μ‖² (Gaussian mean) if continuous."""
+    def policy_outputs(self, context: RewardTrajectoryContext, scored: RewardTrajectoryContext
+                       ) -> tuple[Tensor, Tensor | None]:
+        """log T^R(a_h | s_h, D) for each step of ``scored`` -> (B, H), −‖a − μ‖² (Gaussian mean) if continuous;
+        and the policy's own return-to-go estimate v_θ(s_h | D) -> (B, H), or None without ``value_auxiliary``."""
         t = context.states.shape[1]
         visible = torch.full((scored.states.shape[1],), t, device=scored.states.device)
-        out = self.policy(context, scored.states, visible)
+        features = self.policy.features(context, scored.states, visible)
+        out = self.policy.head(features)
         if self.action_spec.discrete:
-            return out.log_softmax(-1).gather(-1, scored.actions.long()[..., None]).squeeze(-1)
-        return -(out - scored.actions).pow(2).sum(-1)
+            log_likelihood = out.log_softmax(-1).gather(-1, scored.actions.long()[..., None]).squeeze(-1)
+        else:
+            log_likelihood = -(out - scored.actions).pow(2).sum(-1)
+        value = None if self.policy_value_head is None else self.policy_value_head(features).squeeze(-1)
+        return log_likelihood, value
+
+    def log_likelihood(self, context: RewardTrajectoryContext, scored: RewardTrajectoryContext) -> Tensor:
+        """log T^R(a_h | s_h, D) for each step of ``scored`` -> (B, H); −‖a − μ‖² (Gaussian mean) if continuous."""
+        return self.policy_outputs(context, scored)[0]
 
     def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
         hp = self.hparams
         context, scored = swap_roles(*self.labeled_trajectories(batch))
+        returns = (1 - hp.gamma) * discounted_returns(scored.rewards, hp.gamma)
+        auxiliary = self.policy_value_head is not None
         if not self.policy_phase:
             q, v = self.values(context, scored)
-            loss = dit_value_loss(q, v, (1 - hp.gamma) * discounted_returns(scored.rewards, hp.gamma))
-            return loss, {"value_loss": loss, "advantage_std": (q - v).detach().std()}
+            loss = dit_value_loss(q, v, returns)
+            metrics = {"value_loss": loss, "advantage_std": (q - v).detach().std()}
+            if auxiliary:
+                policy_value = self.policy_outputs(context, scored)[1]
+                metrics["policy_value_loss"] = unexplained_variance(policy_value, returns)
+                loss = loss + hp.value_auxiliary * metrics["policy_value_loss"]
+            return loss, metrics
         with torch.no_grad():
             raw = self.advantages(context, scored)
             advantage = standardized_advantages(raw, center=hp.center_advantages)
-        loss = advantage_weighted_loss(self.log_likelihood(context, scored), advantage, hp.eta, hp.max_weight)
+        log_likelihood, policy_value = self.policy_outputs(context, scored)
+        loss = advantage_weighted_loss(log_likelihood, advantage, hp.eta, hp.max_weight)
         weight = torch.exp(advantage / hp.eta).clamp(max=hp.max_weight)
         offset = raw.mean() / (raw.std() + 1e-6)
-        return loss, {"policy_loss": loss, "mean_weight": weight.mean(), "weight_std": weight.std(),
-                      "clipped_fraction": (weight >= hp.max_weight).float().mean(), "advantage_offset": offset}
+        metrics = {"policy_loss": loss, "mean_weight": weight.mean(), "weight_std": weight.std(),
+                   "clipped_fraction": (weight >= hp.max_weight).float().mean(), "advantage_offset": offset}
+        if auxiliary:
+            metrics["policy_value_loss"] = unexplained_variance(policy_value, returns)
+            loss = loss + hp.value_auxiliary * metrics["policy_value_loss"]
+        return loss, metrics
+
+    def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        super().validation_step(batch, batch_idx)
+        if "task" in batch:
+            self.log_dict({f"val/{k}": v for k, v in self.context_reading(batch).items()}, sync_dist=True)
+
+    @torch.no_grad()
+    def context_reading(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """Value loss and log-likelihood of the behavior's actions with the own context and with another task's
+        (each row's context taken from the previous row, rows of the same task left out; empty dict if none)."""
+        context, scored = swap_roles(*self.labeled_trajectories(batch))
+        task = torch.cat([batch["task"], batch["task"]])
+        previous = torch.roll(torch.arange(len(task), device=task.device), 1)
+        keep = task[previous] != task
+        if not keep.any():
+            return {}
+        other = RewardTrajectoryContext(context.states[previous], context.actions[previous],
+                                        context.rewards[previous])
+        returns = (1 - self.hparams.gamma) * discounted_returns(scored.rewards, self.hparams.gamma)
+        out = {}
+        for name, ctx in (("_own_context", context), ("_other_task", other)):
+            q, v = self.values(ctx, scored)
+            out[f"value_loss{name}"] = dit_value_loss(q[keep], v[keep], returns[keep])
+            out[f"log_likelihood{name}"] = self.log_likelihood(ctx, scored)[keep].mean()
+        return out

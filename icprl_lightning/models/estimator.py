@@ -21,6 +21,7 @@ import torch
 from torch import Tensor, nn
 
 from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.models.normalization import InputNormalizer
 from icprl_lightning.models.tokenizers import TOKENIZERS
 from icprl_lightning.models.transformer import CausalTransformer
 from icprl_lightning.validation import check_range
@@ -30,7 +31,8 @@ class InContextEstimator(nn.Module):
     """f(s[, a] | D) -> a scalar per query; ``with_action`` says whether the query holds an action."""
 
     def __init__(self, context_kind: str, state_dim: int, action_spec: ActionSpec, with_action: bool, n_layer: int,
-                 n_embd: int, n_head: int, max_context: int, dropout: float = 0.0) -> None:
+                 n_embd: int, n_head: int, max_context: int, dropout: float = 0.0, normalize_inputs: bool = False
+                 ) -> None:
         super().__init__()
         if context_kind not in TOKENIZERS:
             raise ValueError(f"no tokenizer for context kind {context_kind!r}; known: {sorted(TOKENIZERS)}")
@@ -41,6 +43,7 @@ class InContextEstimator(nn.Module):
         self.query_embed = nn.Linear(state_dim + (action_spec.size if with_action else 0), n_embd)
         self.transformer = CausalTransformer(n_layer, n_embd, n_head, max_context, dropout)
         self.head = nn.Linear(n_embd, 1)
+        self.normalizer = InputNormalizer(state_dim) if normalize_inputs else None  # see models/normalization.py
 
     def forward(self, context, states: Tensor, actions: Tensor | None = None, visible: Tensor | None = None
                 ) -> Tensor:
@@ -50,6 +53,8 @@ class InContextEstimator(nn.Module):
         """
         if self.with_action != (actions is not None):
             raise ValueError(f"this estimator {'needs' if self.with_action else 'takes no'} query actions")
+        if self.normalizer is not None:
+            context, states = self.normalizer.context(context), self.normalizer.states(states)
         tokens = self.tokenizer(context)  # (B, T, D)
         query = states if actions is None else torch.cat([states, self.action_spec.encode(actions)], dim=-1)
         if visible is None:

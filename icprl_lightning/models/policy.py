@@ -10,6 +10,7 @@ from __future__ import annotations
 from torch import Tensor, nn
 
 from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.models.normalization import InputNormalizer
 from icprl_lightning.models.tokenizers import TOKENIZERS
 from icprl_lightning.models.transformer import CausalTransformer, KVCache
 
@@ -27,7 +28,7 @@ class InContextPolicy(nn.Module):
     """Maps (context, query states) to action logits (discrete) or action means (continuous)."""
 
     def __init__(self, context_kind: str, state_dim: int, action_spec: ActionSpec, n_layer: int, n_embd: int,
-                 n_head: int, max_context: int, dropout: float = 0.0) -> None:
+                 n_head: int, max_context: int, dropout: float = 0.0, normalize_inputs: bool = False) -> None:
         super().__init__()
         if context_kind not in TOKENIZERS:
             raise ValueError(f"no tokenizer for context kind {context_kind!r}; known: {sorted(TOKENIZERS)}")
@@ -39,15 +40,26 @@ class InContextPolicy(nn.Module):
         self.transformer = CausalTransformer(n_layer, n_embd, n_head, max_context, dropout)
         self.head = (nn.Linear(n_embd, action_spec.size) if action_spec.discrete
                      else GaussianMeanHead(n_embd, action_spec.size))
+        # standardized states and rewards (models/normalization.py); None: the raw inputs, as the paper
+        self.normalizer = InputNormalizer(state_dim) if normalize_inputs else None
+
+    def _tokens(self, context) -> Tensor:
+        return self.tokenizer(context if self.normalizer is None else self.normalizer.context(context))
+
+    def _query(self, query_states: Tensor) -> Tensor:
+        return self.query_embed(query_states if self.normalizer is None else self.normalizer.states(query_states))
+
+    def features(self, context, query_states: Tensor, visible: Tensor) -> Tensor:
+        """The transformer's outputs at the query tokens, before the action head -> (B, Q, n_embd)."""
+        return self.transformer(self._tokens(context), self._query(query_states), visible)
 
     def forward(self, context, query_states: Tensor, visible: Tensor) -> Tensor:
         """query_states (B, Q, S), visible (Q,) -> (B, Q, A): logits or action means."""
-        h = self.transformer(self.tokenizer(context), self.query_embed(query_states), visible)
-        return self.head(h)
+        return self.head(self.features(context, query_states, visible))
 
     def encode(self, context) -> KVCache:
-        return self.transformer.encode(self.tokenizer(context))
+        return self.transformer.encode(self._tokens(context))
 
     def query(self, cache: KVCache, query_states: Tensor) -> Tensor:
         """query_states (B, Q, S) against the whole cached context -> (B, Q, A)."""
-        return self.head(self.transformer.query(cache, self.query_embed(query_states)))
+        return self.head(self.transformer.query(cache, self._query(query_states)))

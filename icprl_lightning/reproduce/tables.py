@@ -147,6 +147,7 @@ def _tprl_runs() -> tuple[Run, ...]:
 # configs' 10 pairs per goal, every epoch 4× the steps. ICRG's stages beside their oracle (DIT on true rewards), DP²T.
 SAC_ORACLE = "configs/overlays/sac_oracle.yaml"
 REACH_TPRL_PAIRS = ("--data.init_args.setting.init_args.trajectories_per_task", "40")
+LONG_VALUE_PHASE = ("--model.init_args.value_epochs", "12", "--trainer.max_epochs", "16")
 
 
 def _reach_tprl_runs() -> tuple[Run, ...]:
@@ -299,6 +300,19 @@ TABLES = {t.name: t for t in (
                 for eta in ("0.3", "0.1")),
           evaluations=(Evaluation("", ("--greedy",)),), contexts=("other_task",),
           budget="≈ 10–20 min per fit on 1 core (the data from metaworld_tprl_sac)"),
+    Table("metaworld_dit_goal_signal", "Meta-World Reach T-PRL (metaworld_tprl_sac's data): DIT on true rewards with "
+          "the return-to-go advantage, 12 value epochs instead of 4, with the policy's own auxiliary return-to-go "
+          "head (value_auxiliary 1), or with standardized inputs at the config's 4 + 4 epochs: does a longer value "
+          "phase, a goal-dependent target for the policy's features, or O(1) inputs make DIT read its context?",
+          tuple(Run(name, ("configs/dit_metaworld.yaml", SAC_ORACLE),
+                    (*REACH_TPRL_PAIRS, "--model.init_args.advantage", "return_to_go", *extra))
+                for name, extra in (("DIT return-to-go 12 value epochs", LONG_VALUE_PHASE),
+                                    ("DIT return-to-go 12 value epochs value aux",
+                                     (*LONG_VALUE_PHASE, "--model.init_args.value_auxiliary", "1.0")),
+                                    ("DIT return-to-go normalized inputs",
+                                     ("--model.init_args.normalize_inputs", "true")))),
+          evaluations=(Evaluation("", ("--greedy",)),), contexts=("other_task",),
+          budget="≈ 15–45 min per fit on 1 core (the data from metaworld_tprl_sac)"),
     Table("metaworld_dpt_context_source", "Meta-World Reach, the paper's recipe: can DPT read the goal from its "
           "context's rewards? DPT trained on reward contexts of SAC's 50% checkpoint (DIT's data policy) or of the "
           "20/40/80% ones in turn, instead of the converged policy's",
