@@ -95,3 +95,54 @@ def test_fit_start_fits_every_network_once_and_the_agent_keeps_the_statistics(da
     ctx = dm.evaluation_suites()[0].context
     agent.reset(ctx)
     assert agent.act(ctx.states[:, 0]).shape == (ctx.batch_size,)
+
+
+@pytest.mark.parametrize("method, data", [("ICPO", "tiny_ipref"), ("DP2T", "tiny_ipref"), ("DPT", "tiny_reward")])
+def test_every_policy_method_standardizes_and_a_preference_method_sees_no_reward_statistics(method, data, request):
+    from icprl_lightning.methods.dpt import DP2TModule, DPTModule
+    from icprl_lightning.methods.icpo import ICPOModule
+
+    dm = request.getfixturevalue(data)
+    torch.manual_seed(0)
+    model = {"ICPO": ICPOModule, "DP2T": DP2TModule, "DPT": DPTModule}[method](**ENV, **SIZES, normalize_inputs=True)
+    L.Trainer(max_steps=1, limit_val_batches=0, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+              enable_model_summary=False).fit(model, datamodule=dm)
+    norm = model.policy.normalizer
+    assert bool(norm.fitted) and (norm.state_std != 1).all()
+    rewarded = method == "DPT"  # only the reward-context oracle is served rewards
+    reward_statistics = (norm.reward_mean.item(), norm.reward_std.item())
+    assert (reward_statistics != (0.0, 1.0)) == rewarded, reward_statistics
+
+
+def test_rewardgen_standardizes_and_icrg_keeps_its_statistics(data_root, tmp_path):
+    """RewardGen fits its statistics on the pairs' states; ICRG copies its architecture with normalize_inputs, loads
+    the fitted statistics with the weights and does not refit them; its own DIT networks see no true rewards."""
+    from icprl_lightning.methods.icrg import ICRGModule
+    from icprl_lightning.methods.reward_gen import RewardGenModule
+
+    dm = darkroom_data("trajectory_preference", root_dir=data_root, pairs=True, query_labels=True,
+                       trajectories_per_task=3, val_trajectories_per_task=2, eval_contexts_per_task=2,
+                       calibration_episodes=2, progress=False, batch_size=8)
+    dm.prepare_data()
+    torch.manual_seed(0)
+
+    def fit(model):
+        trainer = L.Trainer(max_steps=1, limit_val_batches=0, logger=False, enable_checkpointing=False,
+                            enable_progress_bar=False, enable_model_summary=False)
+        trainer.fit(model, datamodule=dm)
+        return trainer
+
+    stage1 = RewardGenModule(**ENV, **SIZES, normalize_inputs=True)
+    trainer = fit(stage1)
+    assert bool(stage1.reward.normalizer.fitted)
+    path = tmp_path / "rg.ckpt"
+    trainer.save_checkpoint(path)
+    stage1.reward.normalizer.state_mean.add_(1.0)  # the checkpoint holds the fitted statistics, not these
+    icrg = ICRGModule(**ENV, **SIZES, reward_gen_checkpoint=str(path), normalize_inputs=True)
+    assert icrg.hparams.reward_gen_hparams["normalize_inputs"] is True
+    fitted = icrg.reward_gen.normalizer.state_mean.clone()
+    fit(icrg)
+    torch.testing.assert_close(icrg.reward_gen.normalizer.state_mean, fitted)
+    torch.testing.assert_close(fitted + 1.0, stage1.reward.normalizer.state_mean)
+    assert bool(icrg.policy.normalizer.fitted)
+    assert (icrg.v_value.normalizer.reward_mean.item(), icrg.v_value.normalizer.reward_std.item()) == (0.0, 1.0)

@@ -18,6 +18,24 @@ from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.validation import check_choice, check_int, check_kind, check_sizes, check_transformer
 
 
+def fit_input_normalizers(module: L.LightningModule) -> None:
+    """Fits every input normalizer of ``module`` that is not fitted yet on the fields of the DataModule's training
+    split that its batches serve (once: a resumed or fine-tuned fit, or a frozen stage loaded from its checkpoint,
+    keeps its statistics). Every rank reads the whole split, so all agree. Call it from ``on_fit_start``."""
+    normalizers = [m for m in module.modules() if isinstance(m, InputNormalizer) and not m.fitted]
+    if not normalizers:
+        return
+    datamodule = module.trainer.datamodule
+    dataset = getattr(datamodule, "dataset", None)
+    if dataset is None or not hasattr(datamodule, "batch_fields"):
+        raise ValueError(f"{type(module).__name__}: normalize_inputs fits its statistics on the DataModule's stored "
+                         "training split (its ``dataset`` and ``batch_fields``), and this DataModule has none")
+    # only the fields the batches serve: a preference method must not see the scale of stored rewards
+    split = {k: dataset["train"][k] for k in datamodule.batch_fields()}
+    for normalizer in normalizers:
+        normalizer.fit(split)
+
+
 class InContextModule(L.LightningModule):
     """Base LightningModule of DPT, DP²T and ICPO (see the module docstring).
 
@@ -48,21 +66,7 @@ class InContextModule(L.LightningModule):
                                       max_context, dropout, normalize_inputs)
 
     def on_fit_start(self) -> None:
-        """Fits every input normalizer that is not fitted yet on the fields of the DataModule's training split that
-        its batches serve (once: a resumed or fine-tuned fit keeps the checkpoint's statistics). Every rank reads the
-        whole split, so all agree."""
-        normalizers = [m for m in self.modules() if isinstance(m, InputNormalizer) and not m.fitted]
-        if not normalizers:
-            return
-        datamodule = self.trainer.datamodule
-        dataset = getattr(datamodule, "dataset", None)
-        if dataset is None or not hasattr(datamodule, "batch_fields"):
-            raise ValueError(f"{type(self).__name__}: normalize_inputs fits its statistics on the DataModule's stored "
-                             "training split (its ``dataset`` and ``batch_fields``), and this DataModule has none")
-        # only the fields the batches serve: a preference method must not see the scale of stored rewards
-        split = {k: dataset["train"][k] for k in datamodule.batch_fields()}
-        for normalizer in normalizers:
-            normalizer.fit(split)
+        fit_input_normalizers(self)
 
     @property
     def consumes(self) -> tuple[str, ...]:

@@ -40,9 +40,10 @@ class DPTModule(SupervisedPretrainingModule):
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, n_layer: int = 3,
                  n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, queries_per_context: int | None = None) -> None:
+                 weight_decay: float = 0.0, queries_per_context: int | None = None,
+                 normalize_inputs: bool = False) -> None:
         super().__init__("reward", state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
-                         dropout, lr, weight_decay, queries_per_context)
+                         dropout, lr, weight_decay, queries_per_context, normalize_inputs)
 
 
 class DP2TModule(SupervisedPretrainingModule):
@@ -51,10 +52,10 @@ class DP2TModule(SupervisedPretrainingModule):
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
                  context_kind: str = "step_preference", n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
                  dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0,
-                 queries_per_context: int | None = None) -> None:
+                 queries_per_context: int | None = None, normalize_inputs: bool = False) -> None:
         if context_kind not in PREFERENCE_KINDS:
             raise HyperparameterError(f"DP2TModule: context_kind must be one of {list(PREFERENCE_KINDS)}, got "
                                       f"{context_kind!r} (DP2T conditions on preferences; a reward context makes "
                                       "it DPT, DPTModule)")
         super().__init__(context_kind, state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
-                         dropout, lr, weight_decay, queries_per_context)
+                         dropout, lr, weight_decay, queries_per_context, normalize_inputs)

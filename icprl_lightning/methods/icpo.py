@@ -48,7 +48,8 @@ class ICPOModule(InContextModule):
                  lam: float = 0.5, pair_source: str = "other_trajectory", lambda_on_preferred: bool = False,
                  squared_distance: bool = False, n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
                  dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0,
-                 queries_per_context: int | None = None, pair_steps: str = "shuffled") -> None:
+                 queries_per_context: int | None = None, pair_steps: str = "shuffled",
+                 normalize_inputs: bool = False) -> None:
         check_choice("ICPOModule", "pair_source", pair_source, PAIR_SOURCES)
         check_choice("ICPOModule", "pair_steps", pair_steps, PAIR_STEPS)
         check_positive("ICPOModule", "beta", beta)
@@ -60,7 +61,7 @@ class ICPOModule(InContextModule):
                                               f"Gaussian-mean loss), but this data's actions are discrete; got "
                                               f"{key}={value!r}, must be false")
         super().__init__("step_preference", state_dim, action_dim, discrete, max_context, n_layer, n_embd,
-                         n_head, dropout, lr, weight_decay, queries_per_context)
+                         n_head, dropout, lr, weight_decay, queries_per_context, normalize_inputs)
 
     @property
     def needs_pairs(self) -> bool:  # type: ignore[override]

@@ -40,7 +40,7 @@ from icprl_lightning.methods.reward_gen import RewardGenModule
 from icprl_lightning.models.estimator import InContextRewardModel
 from icprl_lightning.validation import HyperparameterError
 
-ARCHITECTURE = ("n_layer", "n_embd", "n_head", "max_context", "dropout", "causal", "reward_range")
+ARCHITECTURE = ("n_layer", "n_embd", "n_head", "max_context", "dropout", "causal", "reward_range", "normalize_inputs")
 
 
 # where a fit's checkpoint holds PreferenceDataModule's state_dict, its fold settings (Lightning names the
@@ -125,9 +125,11 @@ class ICRGModule(DITModule):
                  cross_fit_hparams: list[dict[str, Any]] | None = None, gamma: float = 0.95, eta: float = 1.0,
                  max_weight: float = 20.0, value_epochs: int = 2,
                  n_layer: int = 3, n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, center_advantages: bool = True, advantage: str = "q_minus_v") -> None:
+                 weight_decay: float = 0.0, center_advantages: bool = True, advantage: str = "q_minus_v",
+                 normalize_inputs: bool = False) -> None:
         super().__init__(state_dim, action_dim, discrete, max_context, gamma, eta, max_weight, value_epochs, n_layer,
-                         n_embd, n_head, dropout, lr, weight_decay, center_advantages, advantage)
+                         n_embd, n_head, dropout, lr, weight_decay, center_advantages, advantage,
+                         normalize_inputs=normalize_inputs)
         weights = None
         sizes = {"state_dim": state_dim, "action_dim": action_dim, "discrete": discrete}
         if reward_gen_hparams is None:

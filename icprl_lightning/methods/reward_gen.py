@@ -38,6 +38,7 @@ import torch
 from torch import Tensor
 
 from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext, context_from_batch
+from icprl_lightning.methods.base import fit_input_normalizers
 from icprl_lightning.methods.losses import trajectory_preference_loss
 from icprl_lightning.models.estimator import InContextRewardModel
 from icprl_lightning.validation import check_choice, check_range, check_sizes, check_transformer
@@ -52,8 +53,10 @@ class RewardGenModule(L.LightningModule):
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
                  pair_source: str = "other_pair", reward_range: list[float] | None = None,
                  n_layer: int = 4, n_embd: int = 32, n_head: int = 4,
-                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0) -> None:
+                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0,
+                 normalize_inputs: bool = False) -> None:
         check_choice("RewardGenModule", "pair_source", pair_source, PAIR_SOURCES)
+        check_choice("RewardGenModule", "normalize_inputs", normalize_inputs, (True, False))
         bounds = check_range("RewardGenModule", "reward_range", reward_range)
         check_sizes("RewardGenModule", state_dim, action_dim)
         check_transformer("RewardGenModule", n_layer, n_embd, n_head, dropout, lr, weight_decay, max_context)
@@ -63,8 +66,11 @@ class RewardGenModule(L.LightningModule):
         self.hparams["causal"] = causal  # R_ψ's reading rule, saved for ICRG to copy (icrg.ARCHITECTURE)
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.reward = InContextRewardModel(state_dim, self.action_spec, n_layer, n_embd, n_head, max_context, dropout,
-                                           causal=causal, reward_range=bounds)
+                                           causal=causal, reward_range=bounds, normalize_inputs=normalize_inputs)
         self._moments = torch.zeros(3, dtype=torch.float64)  # count, sum, sum of squares of val outputs
+
+    def on_fit_start(self) -> None:
+        fit_input_normalizers(self)  # normalize_inputs: standardized states (models/normalization.py)
 
     @property
     def needs_pairs(self) -> bool:

@@ -84,9 +84,9 @@ class InContextRewardModel(InContextEstimator):
 
     def __init__(self, state_dim: int, action_spec: ActionSpec, n_layer: int, n_embd: int, n_head: int,
                  max_context: int, dropout: float = 0.0, causal: bool = False,
-                 reward_range: tuple[float, float] | None = None) -> None:
+                 reward_range: tuple[float, float] | None = None, normalize_inputs: bool = False) -> None:
         super().__init__("trajectory_preference", state_dim, action_spec, True, n_layer, n_embd, n_head, max_context,
-                         dropout)
+                         dropout, normalize_inputs)
         if not isinstance(causal, bool):
             raise ValueError(f"InContextRewardModel: causal must be a bool, got {causal!r}")
         self.causal = causal
