@@ -3,7 +3,7 @@ Transformer", eq. dit-advantage: Â = Q̂ − V̂, the weight of each behavior a
 
     python scripts/dit_advantage_check.py \
         --dit configs/dit_metaworld.yaml:runs/dit_metaworld/checkpoints/last.ckpt \
-        --icrg configs/icrg_metaworld.yaml:runs/icrg_metaworld/checkpoints/last.ckpt
+        --icrg configs/icrg_metaworld.yaml:runs/icrg_metaworld/checkpoints/last.ckpt   # optional
 
 On the validation pairs of the training goals (never trained on), both trajectories of each pair are
 scored with the other as context, exactly as in training (``swap_roles``). An action's measured quality
@@ -49,47 +49,53 @@ def advantages(module: DITModule, batch: dict[str, torch.Tensor]) -> dict[str, t
             "return_to_go": return_to_go_advantages(v, scored.rewards, gamma), "rewards": scored.rewards}
 
 
+def dit_correlations(prefix: str, a: dict[str, torch.Tensor], progress: torch.Tensor) -> dict[str, float]:
+    """Correlation of progress (step h ≥ 1) and of the next step's progress with each advantage form."""
+    lagged = progress[:, 1:]  # the arm follows its mocap target with a lag: also the progress of the next step
+    return {f"corr_progress_vs_{prefix}_advantage": correlation(progress, a["q_minus_v"][:, 1:]),
+            f"corr_next_progress_vs_{prefix}_advantage": correlation(lagged, a["q_minus_v"][:, 1:-1]),
+            f"corr_progress_vs_{prefix}_td_advantage": correlation(progress, a["td"][:, 1:]),
+            f"corr_progress_vs_{prefix}_return_to_go_advantage": correlation(progress, a["return_to_go"][:, 1:])}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--dit", required=True, help="CONFIG:CHECKPOINT of DIT on true rewards")
-    parser.add_argument("--icrg", required=True, help="CONFIG:CHECKPOINT of ICRG")
+    parser.add_argument("--icrg", help="CONFIG:CHECKPOINT of ICRG (optional: without it, DIT's correlations only)")
     args = parser.parse_args()
-    (dit_config, _, dit_ckpt), (icrg_config, _, icrg_ckpt) = (s.partition(":") for s in (args.dit, args.icrg))
-    rewarded, preferences = datamodule_from_config(dit_config), datamodule_from_config(icrg_config)
+    dit_config, _, dit_ckpt = args.dit.partition(":")
+    rewarded = datamodule_from_config(dit_config)
     rewarded.prepare_data()
-    preferences.prepare_data()
-    true, pref = rewarded.load()["val"], preferences.load()["val"]
-    for k in TRAJECTORY:
-        if not np.array_equal(true[k], pref[k]):
-            raise ValueError(f"{dit_config} and {icrg_config} do not hold the same trajectories ({k} differs)")
-    rows = np.arange(len(pref["preferred"]))
-    other = other_rows(rows, preferences.trajectories_per_task[1], 1)  # the next validation pair of the same goal
+    true = rewarded.load()["val"]
     dit_batch = {k: to_tensor(np.asarray(true[k])) for k in (*TRAJECTORY, "rewards_a", "rewards_b")}
-    icrg_batch = {k: to_tensor(np.asarray(pref[k])) for k in (*TRAJECTORY, "preferred")}
-    icrg_batch.update({f"pair_{k}": to_tensor(np.asarray(pref[k])[other]) for k in (*TRAJECTORY, "preferred")})
-
-    dit, icrg = load_module(dit_ckpt).eval(), load_module(icrg_ckpt).eval()
-    if not (isinstance(dit, DITModule) and isinstance(icrg, ICRGModule)):
-        raise ValueError(f"--dit must be a DIT and --icrg an ICRG checkpoint, got {type(dit).__name__} and "
-                         f"{type(icrg).__name__}")
-    dit_a, icrg_a = advantages(dit, dit_batch), advantages(icrg, icrg_batch)
-    dit_adv, icrg_adv, reward, reward_hat = dit_a["q_minus_v"], icrg_a["q_minus_v"], dit_a["rewards"], icrg_a["rewards"]
+    dit = load_module(dit_ckpt).eval()
+    if not isinstance(dit, DITModule) or isinstance(dit, ICRGModule):
+        raise ValueError(f"--dit must be a DIT checkpoint, got {type(dit).__name__}")
+    dit_a = advantages(dit, dit_batch)
+    reward = dit_a["rewards"]
     progress = reward[:, 1:] - reward[:, :-1]  # step h ≥ 1: distance before it minus distance after it
-    # the arm follows its mocap target with a lag: also the progress of the step after the action
-    lagged = progress[:, 1:]
-    print(json.dumps({
-        "pairs": len(rows), "steps_scored": int(progress.numel()),
-        "corr_progress_vs_dit_advantage": correlation(progress, dit_adv[:, 1:]),
-        "corr_progress_vs_icrg_advantage": correlation(progress, icrg_adv[:, 1:]),
-        "corr_next_progress_vs_dit_advantage": correlation(lagged, dit_adv[:, 1:-1]),
-        "corr_next_progress_vs_icrg_advantage": correlation(lagged, icrg_adv[:, 1:-1]),
-        "corr_progress_vs_dit_td_advantage": correlation(progress, dit_a["td"][:, 1:]),
-        "corr_progress_vs_icrg_td_advantage": correlation(progress, icrg_a["td"][:, 1:]),
-        "corr_progress_vs_dit_return_to_go_advantage": correlation(progress, dit_a["return_to_go"][:, 1:]),
-        "corr_progress_vs_icrg_return_to_go_advantage": correlation(progress, icrg_a["return_to_go"][:, 1:]),
-        "corr_progress_vs_reward_hat": correlation(progress, reward_hat[:, 1:]),
-        "corr_true_reward_vs_reward_hat": correlation(reward, reward_hat),
-    }, indent=2))
+    out = {"pairs": len(true["states_a"]), "steps_scored": int(progress.numel()),
+           **dit_correlations("dit", dit_a, progress)}
+    if args.icrg:
+        icrg_config, _, icrg_ckpt = args.icrg.partition(":")
+        preferences = datamodule_from_config(icrg_config)
+        preferences.prepare_data()
+        pref = preferences.load()["val"]
+        for k in TRAJECTORY:
+            if not np.array_equal(true[k], pref[k]):
+                raise ValueError(f"{dit_config} and {icrg_config} do not hold the same trajectories ({k} differs)")
+        rows = np.arange(len(pref["preferred"]))
+        other = other_rows(rows, preferences.trajectories_per_task[1], 1)  # the next validation pair of the same goal
+        icrg_batch = {k: to_tensor(np.asarray(pref[k])) for k in (*TRAJECTORY, "preferred")}
+        icrg_batch.update({f"pair_{k}": to_tensor(np.asarray(pref[k])[other]) for k in (*TRAJECTORY, "preferred")})
+        icrg = load_module(icrg_ckpt).eval()
+        if not isinstance(icrg, ICRGModule):
+            raise ValueError(f"--icrg must be an ICRG checkpoint, got {type(icrg).__name__}")
+        icrg_a = advantages(icrg, icrg_batch)
+        out.update(dit_correlations("icrg", icrg_a, progress))
+        out["corr_progress_vs_reward_hat"] = correlation(progress, icrg_a["rewards"][:, 1:])
+        out["corr_true_reward_vs_reward_hat"] = correlation(reward, icrg_a["rewards"])
+    print(json.dumps(out, indent=2))
 
 
 if __name__ == "__main__":

@@ -148,6 +148,7 @@ def _tprl_runs() -> tuple[Run, ...]:
 SAC_ORACLE = "configs/overlays/sac_oracle.yaml"
 REACH_TPRL_PAIRS = ("--data.init_args.setting.init_args.trajectories_per_task", "40")
 LONG_VALUE_PHASE = ("--model.init_args.value_epochs", "12", "--trainer.max_epochs", "16")
+NORMALIZED = ("--model.init_args.normalize_inputs", "true")
 
 
 def _reach_tprl_runs() -> tuple[Run, ...]:
@@ -167,6 +168,18 @@ def _reach_advantage_runs() -> tuple[Run, ...]:
             Run("RewardGen", ("configs/reward_gen_metaworld.yaml", SAC_ORACLE), REACH_TPRL_PAIRS, evaluated=False,
                 checkpoint="best"),
             Run("ICRG return-to-go", ("configs/icrg_metaworld.yaml", SAC_ORACLE), rtg,
+                needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen",)),)))
+
+
+def _reach_normalized_runs() -> tuple[Run, ...]:
+    """The Reach T-PRL pipeline with standardized inputs (normalize_inputs, models/normalization.py) for every
+    network: DIT on true rewards and ICRG with the return-to-go advantage, and RewardGen (issue 17)."""
+    normalized = (*REACH_TPRL_PAIRS, *NORMALIZED)
+    rtg = (*normalized, "--model.init_args.advantage", "return_to_go")
+    return (Run("DIT true rewards", ("configs/dit_metaworld.yaml", SAC_ORACLE), rtg),
+            Run("RewardGen", ("configs/reward_gen_metaworld.yaml", SAC_ORACLE), normalized, evaluated=False,
+                checkpoint="best"),
+            Run("ICRG", ("configs/icrg_metaworld.yaml", SAC_ORACLE), rtg,
                 needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen",)),)))
 
 
@@ -302,17 +315,26 @@ TABLES = {t.name: t for t in (
           budget="≈ 10–20 min per fit on 1 core (the data from metaworld_tprl_sac)"),
     Table("metaworld_dit_goal_signal", "Meta-World Reach T-PRL (metaworld_tprl_sac's data): DIT on true rewards with "
           "the return-to-go advantage, 12 value epochs instead of 4, with the policy's own auxiliary return-to-go "
-          "head (value_auxiliary 1), or with standardized inputs at the config's 4 + 4 epochs: does a longer value "
-          "phase, a goal-dependent target for the policy's features, or O(1) inputs make DIT read its context?",
+          "head (value_auxiliary 1), or with standardized inputs (at the config's 4 + 4 epochs, at η = 0.1, or with 12 "
+          "policy epochs): does a longer value phase, a goal-dependent target for the policy's features, or O(1) "
+          "inputs make DIT read its context?",
           tuple(Run(name, ("configs/dit_metaworld.yaml", SAC_ORACLE),
                     (*REACH_TPRL_PAIRS, "--model.init_args.advantage", "return_to_go", *extra))
                 for name, extra in (("DIT return-to-go 12 value epochs", LONG_VALUE_PHASE),
                                     ("DIT return-to-go 12 value epochs value aux",
                                      (*LONG_VALUE_PHASE, "--model.init_args.value_auxiliary", "1.0")),
-                                    ("DIT return-to-go normalized inputs",
-                                     ("--model.init_args.normalize_inputs", "true")))),
+                                    ("DIT return-to-go normalized inputs", NORMALIZED),
+                                    ("DIT return-to-go normalized inputs eta0.1",
+                                     (*NORMALIZED, "--model.init_args.eta", "0.1")),
+                                    ("DIT return-to-go normalized inputs 12 policy epochs",
+                                     (*NORMALIZED, "--trainer.max_epochs", "16")))),
           evaluations=(Evaluation("", ("--greedy",)),), contexts=("other_task",),
           budget="≈ 15–45 min per fit on 1 core (the data from metaworld_tprl_sac)"),
+    Table("metaworld_tprl_normalized", "Meta-World Reach T-PRL (metaworld_tprl_sac's data) with standardized inputs: "
+          "DIT on true rewards and ICRG (return-to-go advantage), RewardGen",
+          _reach_normalized_runs(), evaluations=(Evaluation("", ("--greedy",)),),
+          baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
+          budget="≈ 10–25 min per fit on 1 core (the data from metaworld_tprl_sac); ICRG after its RewardGen"),
     Table("metaworld_dpt_context_source", "Meta-World Reach, the paper's recipe: can DPT read the goal from its "
           "context's rewards? DPT trained on reward contexts of SAC's 50% checkpoint (DIT's data policy) or of the "
           "20/40/80% ones in turn, instead of the converged policy's",
