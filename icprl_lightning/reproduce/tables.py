@@ -172,14 +172,14 @@ def _reach_advantage_runs() -> tuple[Run, ...]:
 
 
 def _reach_normalized_runs() -> tuple[Run, ...]:
-    """The Reach T-PRL pipeline with standardized inputs (normalize_inputs, models/normalization.py) for every
-    network: DIT on true rewards and ICRG with the return-to-go advantage, and RewardGen (issue 17)."""
+    """ICRG (return-to-go advantage) and its RewardGen with standardized inputs (normalize_inputs,
+    models/normalization.py) for every network (issue 17). DIT on true rewards with standardized inputs, its oracle,
+    is metaworld_dit_goal_signal's "DIT return-to-go normalized inputs"."""
     normalized = (*REACH_TPRL_PAIRS, *NORMALIZED)
-    rtg = (*normalized, "--model.init_args.advantage", "return_to_go")
-    return (Run("DIT true rewards", ("configs/dit_metaworld.yaml", SAC_ORACLE), rtg),
-            Run("RewardGen", ("configs/reward_gen_metaworld.yaml", SAC_ORACLE), normalized, evaluated=False,
+    return (Run("RewardGen", ("configs/reward_gen_metaworld.yaml", SAC_ORACLE), normalized, evaluated=False,
                 checkpoint="best"),
-            Run("ICRG", ("configs/icrg_metaworld.yaml", SAC_ORACLE), rtg,
+            Run("ICRG", ("configs/icrg_metaworld.yaml", SAC_ORACLE),
+                (*normalized, "--model.init_args.advantage", "return_to_go"),
                 needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen",)),)))
 
 
@@ -330,8 +330,8 @@ TABLES = {t.name: t for t in (
                                      (*NORMALIZED, "--trainer.max_epochs", "16")))),
           evaluations=(Evaluation("", ("--greedy",)),), contexts=("other_task",),
           budget="≈ 15–45 min per fit on 1 core (the data from metaworld_tprl_sac)"),
-    Table("metaworld_tprl_normalized", "Meta-World Reach T-PRL (metaworld_tprl_sac's data) with standardized inputs: "
-          "DIT on true rewards and ICRG (return-to-go advantage), RewardGen",
+    Table("metaworld_tprl_normalized", "Meta-World Reach T-PRL (metaworld_tprl_sac's data): ICRG (return-to-go "
+          "advantage) and its RewardGen with standardized inputs",
           _reach_normalized_runs(), evaluations=(Evaluation("", ("--greedy",)),),
           baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
           budget="≈ 10–25 min per fit on 1 core (the data from metaworld_tprl_sac); ICRG after its RewardGen"),
