@@ -172,7 +172,7 @@ def _reach_advantage_runs() -> tuple[Run, ...]:
 
 
 def _reach_normalized_runs() -> tuple[Run, ...]:
-    """ICRG (return-to-go advantage) and its RewardGen with standardized inputs (normalize_inputs,
+    """ICRG (return-to-go advantage) and its RewardGen, and DP²T, with standardized inputs (normalize_inputs,
     models/normalization.py) for every network (issue 17). DIT on true rewards with standardized inputs, its oracle,
     is metaworld_dit_goal_signal's "DIT return-to-go normalized inputs"."""
     normalized = (*REACH_TPRL_PAIRS, *NORMALIZED)
@@ -180,7 +180,8 @@ def _reach_normalized_runs() -> tuple[Run, ...]:
                 checkpoint="best"),
             Run("ICRG", ("configs/icrg_metaworld.yaml", SAC_ORACLE),
                 (*normalized, "--model.init_args.advantage", "return_to_go"),
-                needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen",)),)))
+                needs=(("--model.init_args.reward_gen_checkpoint", ("RewardGen",)),)),
+            Run("DP2T", ("configs/dp2t_metaworld_tprl.yaml", SAC_ORACLE), normalized))
 
 
 # Meta-World Reach I-PRL (issue 13): the paper's recipe (the configs as they are: the committed SAC oracle) and
@@ -331,7 +332,7 @@ TABLES = {t.name: t for t in (
           evaluations=(Evaluation("", ("--greedy",)),), contexts=("other_task",),
           budget="≈ 15–45 min per fit on 1 core (the data from metaworld_tprl_sac)"),
     Table("metaworld_tprl_normalized", "Meta-World Reach T-PRL (metaworld_tprl_sac's data): ICRG (return-to-go "
-          "advantage) and its RewardGen with standardized inputs",
+          "advantage) and its RewardGen, and DP²T, with standardized inputs",
           _reach_normalized_runs(), evaluations=(Evaluation("", ("--greedy",)),),
           baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
           budget="≈ 10–25 min per fit on 1 core (the data from metaworld_tprl_sac); ICRG after its RewardGen"),
