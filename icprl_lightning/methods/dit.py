@@ -42,8 +42,9 @@ any reward scale) to every epoch's loss, v_θ a linear head on the *policy's* tr
 tokens (``policy_value_head``, unused at deployment). On Reach the behavior's actions hardly depend on the goal, so
 imitating them, however weighted, gives the policy no reason to read its context (docs/RESULTS.md: the same return
 with another goal's context); predicting the return-to-go does, since the reward is the distance to the goal. The
-auxiliary regression makes the policy's own features carry the goal its action head can then use; the policy
-trains from the first epoch.
+auxiliary regression is meant to make the policy's own features carry the goal for its action head; the policy
+trains from the first epoch. Measured on Reach (docs/RESULTS.md, ``metaworld_dit_goal_signal``): the head ends at
+1 − R² ≈ 0.61 and the policy still returns the same with another goal's context.
 
 ``normalize_inputs`` standardizes states and rewards for the policy, Q̂ and V̂ with the training split's statistics
 (``models/normalization.py``; not the paper's).
