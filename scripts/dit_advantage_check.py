@@ -14,6 +14,13 @@ seed). Prints JSON: the Pearson correlation of progress with Â (each model's Q�
 error of its V̂: ``advantage: td``, and the return-to-go over its V̂: ``advantage: return_to_go``) and with
 r̂ (ICRG's), and of r̂ with the true per-step reward.
 Advantages that do not correlate with progress make the exp(Â/η)-weighted loss a plain behavior clone.
+
+``--oracle`` (Meta-World Reach on the SAC recipe only) also scores every behavior action by the converged SAC
+oracle's critic, A*(s_h, a_h) = Q̂*(s_h, a_h) − Q̂*(s_h, π*(s_h)) with π*'s mean action: the paper's A* up to a
+per-state constant, what the I-PRL labels compare. Its correlation with each advantage form says whether DIT's
+weights rank the behavior's actions as the optimal advantage does. Progress is a noisy proxy (the arm lags its
+mocap target, and the progress of a step mixes the state's distance with the action); A* is the action's value.
+This reads the privileged oracle and the goals, as a diagnostic script may; no learner does.
 """
 
 from __future__ import annotations
@@ -27,11 +34,14 @@ import torch
 from icprl_lightning.checkpoints import load_module  # noqa: E402
 from icprl_lightning.data.batches import other_rows, to_tensor
 from icprl_lightning.data.config import datamodule_from_config
+from icprl_lightning.families.metaworld_reach.env import GOAL_SLICE
+from icprl_lightning.families.metaworld_reach.sac_family import ReachSACTaskFamily
 from icprl_lightning.methods.dit import DITModule, swap_roles
 from icprl_lightning.methods.icrg import ICRGModule
-from icprl_lightning.methods.losses import return_to_go_advantages, td_advantages
+from icprl_lightning.methods.losses import discounted_returns, gae_advantages, return_to_go_advantages, td_advantages
 
 TRAJECTORY = ("states_a", "actions_a", "states_b", "actions_b")
+GAE_LAMBDAS = (0.5, 0.8, 0.9, 0.95)  # between the TD error (λ = 0) and the return-to-go (λ = 1)
 
 
 def correlation(x: torch.Tensor, y: torch.Tensor) -> float:
@@ -46,7 +56,8 @@ def advantages(module: DITModule, batch: dict[str, torch.Tensor]) -> dict[str, t
         q, v = module.values(context, scored)
     gamma = module.hparams.gamma
     return {"q_minus_v": q - v, "td": td_advantages(v, scored.rewards, gamma),
-            "return_to_go": return_to_go_advantages(v, scored.rewards, gamma), "rewards": scored.rewards}
+            "return_to_go": return_to_go_advantages(v, scored.rewards, gamma), "rewards": scored.rewards,
+            **{f"gae{lam}": gae_advantages(v, scored.rewards, gamma, lam) for lam in GAE_LAMBDAS}}
 
 
 def dit_correlations(prefix: str, a: dict[str, torch.Tensor], progress: torch.Tensor) -> dict[str, float]:
@@ -55,13 +66,36 @@ def dit_correlations(prefix: str, a: dict[str, torch.Tensor], progress: torch.Te
     return {f"corr_progress_vs_{prefix}_advantage": correlation(progress, a["q_minus_v"][:, 1:]),
             f"corr_next_progress_vs_{prefix}_advantage": correlation(lagged, a["q_minus_v"][:, 1:-1]),
             f"corr_progress_vs_{prefix}_td_advantage": correlation(progress, a["td"][:, 1:]),
-            f"corr_progress_vs_{prefix}_return_to_go_advantage": correlation(progress, a["return_to_go"][:, 1:])}
+            f"corr_progress_vs_{prefix}_return_to_go_advantage": correlation(progress, a["return_to_go"][:, 1:]),
+            **{f"corr_progress_vs_{prefix}_gae{lam}_advantage": correlation(progress, a[f"gae{lam}"][:, 1:])
+               for lam in GAE_LAMBDAS}}
+
+
+def oracle_advantages(family: ReachSACTaskFamily, split: dict, side: str) -> torch.Tensor:
+    """A*(s_h, a_h) = Q̂*(s_h, a_h) − Q̂*(s_h, π*(s_h)) for trajectory ``side`` ("a" or "b") of every row -> (N, H)."""
+    states = np.asarray(split[f"states_{side}"], dtype=np.float32)
+    actions = np.asarray(split[f"actions_{side}"], dtype=np.float32)
+    n, h, _ = states.shape
+    obs = states.reshape(n * h, -1).copy()
+    obs[:, GOAL_SLICE] = np.repeat(family.tasks("train")[np.asarray(split["task_index"])], h, axis=0)
+    weights = family.weights
+    greedy = weights.mean_actions(obs)
+    q = weights.q_values(obs, np.stack([actions.reshape(n * h, -1), greedy]))
+    return torch.as_tensor((q[0] - q[1]).reshape(n, h))
+
+
+def oracle_correlations(prefix: str, a: dict[str, torch.Tensor], optimal: torch.Tensor) -> dict[str, float]:
+    """Correlation of A* with each advantage form, over every scored step."""
+    forms = ("q_minus_v", "td", "return_to_go", *(f"gae{lam}" for lam in GAE_LAMBDAS))
+    return {f"corr_oracle_advantage_vs_{prefix}_{form}": correlation(optimal, a[form]) for form in forms}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--dit", required=True, help="CONFIG:CHECKPOINT of DIT on true rewards")
     parser.add_argument("--icrg", help="CONFIG:CHECKPOINT of ICRG (optional: without it, DIT's correlations only)")
+    parser.add_argument("--oracle", action="store_true",
+                        help="also correlate with the SAC oracle's A*(s, a) (Meta-World Reach, SAC recipe)")
     args = parser.parse_args()
     dit_config, _, dit_ckpt = args.dit.partition(":")
     rewarded = datamodule_from_config(dit_config)
@@ -76,6 +110,17 @@ def main() -> None:
     progress = reward[:, 1:] - reward[:, :-1]  # step h ≥ 1: distance before it minus distance after it
     out = {"pairs": len(true["states_a"]), "steps_scored": int(progress.numel()),
            **dit_correlations("dit", dit_a, progress)}
+    optimal = None
+    if args.oracle:
+        if not isinstance(rewarded.family, ReachSACTaskFamily):
+            raise ValueError(f"--oracle needs the Reach SAC family, got {type(rewarded.family).__name__}")
+        # scored rows are [ξ_b; ξ_a] (swap_roles)
+        optimal = torch.cat([oracle_advantages(rewarded.family, true, side) for side in "ba"])
+        returns = (1 - dit.hparams.gamma) * discounted_returns(reward, dit.hparams.gamma)
+        out.update({"oracle_advantage_std": float(optimal.std()),
+                    "corr_oracle_advantage_vs_progress": correlation(optimal[:, 1:], progress),
+                    "corr_oracle_advantage_vs_return_to_go": correlation(optimal, returns),
+                    **oracle_correlations("dit", dit_a, optimal)})
     if args.icrg:
         icrg_config, _, icrg_ckpt = args.icrg.partition(":")
         preferences = datamodule_from_config(icrg_config)
@@ -95,6 +140,8 @@ def main() -> None:
         out.update(dit_correlations("icrg", icrg_a, progress))
         out["corr_progress_vs_reward_hat"] = correlation(progress, icrg_a["rewards"][:, 1:])
         out["corr_true_reward_vs_reward_hat"] = correlation(reward, icrg_a["rewards"])
+        if optimal is not None:
+            out.update(oracle_correlations("icrg", icrg_a, optimal))
     print(json.dumps(out, indent=2))
 
 

@@ -18,6 +18,7 @@ from icprl_lightning.methods.losses import (
     advantage_weighted_loss,
     discounted_returns,
     dit_value_loss,
+    gae_advantages,
     return_to_go_advantages,
     standardized_advantages,
     td_advantages,
@@ -92,6 +93,18 @@ def test_return_to_go_advantages_subtract_v_from_the_scaled_return_and_ignore_it
     # unlike the TD error, V̂ at the next state does not enter: a step's advantage moves only with its own V̂
     shifted = v + torch.tensor([[0.0, 3.0, 0.0]])
     assert return_to_go_advantages(shifted, r, gamma)[0, [0, 2]].tolist() == pytest.approx([0.3, 0.9], rel=1e-6)
+
+
+def test_gae_spans_the_td_error_and_the_return_to_go():
+    torch.manual_seed(0)
+    v, r, gamma = torch.rand(3, 7), torch.rand(3, 7), 0.9
+    torch.testing.assert_close(gae_advantages(v, r, gamma, 0.0), td_advantages(v, r, gamma))
+    torch.testing.assert_close(gae_advantages(v, r, gamma, 1.0), return_to_go_advantages(v, r, gamma))
+    # λ = 0.5 by hand on one row of two steps: δ = [(1 − γ) r_0 + γ V_1 − V_0, (1 − γ) r_1 − V_1]
+    v, r = torch.tensor([[0.2, 0.5]]), torch.tensor([[1.0, 2.0]])
+    deltas = [0.1 * 1.0 + 0.9 * 0.5 - 0.2, 0.1 * 2.0 - 0.5]
+    expected = [deltas[0] + 0.45 * deltas[1], deltas[1]]
+    assert gae_advantages(v, r, gamma, 0.5)[0].tolist() == pytest.approx(expected, rel=1e-6)
 
 
 # ---- modules -------------------------------------------------------------------------------------

@@ -46,6 +46,12 @@ auxiliary regression is meant to make the policy's own features carry the goal f
 trains from the first epoch. Measured on Reach (docs/RESULTS.md, ``metaworld_dit_goal_signal``): the head ends at
 1 − R² = 0.58 (validation, last epoch) and the policy still returns the same with another goal's context.
 
+``advantage: oracle`` (an oracle baseline, like the true rewards themselves) weights each behavior action by the
+family oracle's optimal advantage A*(s_h, a_h), served with the data (``RewardTrajectories(oracle_advantages=True)``,
+fields ``advantages_a``/``advantages_b``) and standardized as the others. Q̂ and V̂ are then unused (set
+``value_epochs: 0``). It swaps DIT's advantage stage for its oracle: if this policy does not beat the behavior
+either, the weighted clone of the data is what limits DIT, not its advantage estimate.
+
 ``normalize_inputs`` standardizes states and rewards for the policy, Q̂ and V̂ with the training split's statistics
 (``models/normalization.py``; not the paper's).
 
@@ -77,8 +83,10 @@ from icprl_lightning.models.estimator import InContextEstimator
 from icprl_lightning.validation import check_choice, check_int, check_interval, check_nonnegative, check_positive
 
 # Â = Q̂ − V̂ (paper eq. dit-advantage); "td": r_h + γ V̂(s_{h+1}) − V̂(s_h) (losses.td_advantages);
-# "return_to_go": (1 − γ) G_h − V̂(s_h) (losses.return_to_go_advantages)
-ADVANTAGES = ("q_minus_v", "td", "return_to_go")
+# "return_to_go": (1 − γ) G_h − V̂(s_h) (losses.return_to_go_advantages); "oracle": the family oracle's A*(s_h, a_h)
+# served with the data (RewardTrajectories(oracle_advantages=True)), the advantage stage's oracle
+ADVANTAGES = ("q_minus_v", "td", "return_to_go", "oracle")
+ORACLE_FIELDS = ("advantages_a", "advantages_b")
 
 
 def swap_roles(a: RewardTrajectoryContext, b: RewardTrajectoryContext
@@ -143,13 +151,24 @@ class DITModule(InContextModule):
 
     def advantages(self, context: RewardTrajectoryContext, scored: RewardTrajectoryContext) -> Tensor:
         """Â for every step of ``scored`` before normalization -> (B, H): Q̂ − V̂, V̂'s one-step TD error, or the
-        return-to-go over V̂."""
+        return-to-go over V̂ (Q̂ − V̂ under ``advantage: oracle``, whose A* comes with the batch)."""
         if self.hparams.advantage == "td":
             return td_advantages(self.v_value(context, scored.states), scored.rewards, self.hparams.gamma)
         if self.hparams.advantage == "return_to_go":
             return return_to_go_advantages(self.v_value(context, scored.states), scored.rewards, self.hparams.gamma)
         q, v = self.values(context, scored)
         return q - v
+
+    def policy_advantages(self, batch: dict[str, Tensor], context: RewardTrajectoryContext,
+                          scored: RewardTrajectoryContext) -> Tensor:
+        """The raw advantage of every step of ``scored`` ([ξ_b; ξ_a] rows, ``swap_roles``) for the policy loss."""
+        if self.hparams.advantage != "oracle":
+            return self.advantages(context, scored)
+        missing = [k for k in ORACLE_FIELDS if k not in batch]
+        if missing:
+            raise KeyError(f"{type(self).__name__}: advantage 'oracle' reads the oracle's A* from the batch "
+                           f"(fields {missing} are missing): use reward_trajectory data with oracle_advantages: true")
+        return torch.cat([batch["advantages_b"], batch["advantages_a"]]).to(scored.rewards.dtype)
 
     def policy_outputs(self, context: RewardTrajectoryContext, scored: RewardTrajectoryContext
                        ) -> tuple[Tensor, Tensor | None]:
@@ -185,7 +204,7 @@ class DITModule(InContextModule):
                 loss = loss + hp.value_auxiliary * metrics["policy_value_loss"]
             return loss, metrics
         with torch.no_grad():
-            raw = self.advantages(context, scored)
+            raw = self.policy_advantages(batch, context, scored)
             advantage = standardized_advantages(raw, center=hp.center_advantages)
         log_likelihood, policy_value = self.policy_outputs(context, scored)
         loss = advantage_weighted_loss(log_likelihood, advantage, hp.eta, hp.max_weight)

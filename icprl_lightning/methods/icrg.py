@@ -127,6 +127,9 @@ class ICRGModule(DITModule):
                  n_layer: int = 3, n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
                  weight_decay: float = 0.0, center_advantages: bool = True, advantage: str = "q_minus_v",
                  normalize_inputs: bool = False) -> None:
+        if advantage == "oracle":
+            raise HyperparameterError("ICRGModule: advantage 'oracle' reads the oracle's A*, which a preference "
+                                      "method never receives; it is for DIT on true rewards (DITModule)")
         super().__init__(state_dim, action_dim, discrete, max_context, gamma, eta, max_weight, value_epochs, n_layer,
                          n_embd, n_head, dropout, lr, weight_decay, center_advantages, advantage,
                          normalize_inputs=normalize_inputs)

@@ -71,17 +71,27 @@ def discounted_returns(rewards: Tensor, gamma: float) -> Tensor:
     return rewards @ torch.where(lag >= 0, gamma ** lag.clamp(min=0), 0.0)
 
 
+def gae_advantages(v_values: Tensor, rewards: Tensor, gamma: float, lam: float) -> Tensor:
+    """Generalized advantage estimation along the last axis, (..., H) -> (..., H): Σ_k (γλ)^k δ_{h+k} with the TD
+    errors δ_h = (1 − γ) r_h + γ V̂(s_{h+1}) − V̂(s_h), V̂ = 0 after the last step (the returns are truncated there).
+    V̂ is in the value loss's (1 − γ)-scaled units, hence the (1 − γ) r_h. λ = 0 is the one-step TD error, λ = 1
+    telescopes to the Monte Carlo advantage (1 − γ) G_h − V̂(s_h); in between, the return of the next ≈ 1/(1 − γλ)
+    steps is taken as collected and the rest from V̂ (Schulman et al., 2016)."""
+    following = torch.cat([v_values[..., 1:], torch.zeros_like(v_values[..., :1])], dim=-1)
+    deltas = (1 - gamma) * rewards + gamma * following - v_values
+    return discounted_returns(deltas, gamma * lam).detach()
+
+
 def return_to_go_advantages(v_values: Tensor, rewards: Tensor, gamma: float) -> Tensor:
     """(1 − γ) G_h − V̂(s_h) along the last axis, (..., H) -> (..., H): AWR's Monte Carlo advantage, with G_h the
-    discounted return-to-go truncated at the horizon, in the value loss's (1 − γ)-scaled units."""
+    discounted return-to-go truncated at the horizon, in the value loss's (1 − γ)-scaled units (GAE at λ = 1)."""
     return ((1 - gamma) * discounted_returns(rewards, gamma) - v_values).detach()
 
 
 def td_advantages(v_values: Tensor, rewards: Tensor, gamma: float) -> Tensor:
     """(1 − γ) r_h + γ V̂(s_{h+1}) − V̂(s_h) along the last axis, (..., H) -> (..., H), V̂ = 0 after the last step
-    (the returns are truncated there). V̂ is in the value loss's (1 − γ)-scaled units, hence the (1 − γ) r_h."""
-    following = torch.cat([v_values[..., 1:], torch.zeros_like(v_values[..., :1])], dim=-1)
-    return ((1 - gamma) * rewards + gamma * following - v_values).detach()
+    (the returns are truncated there): GAE at λ = 0."""
+    return gae_advantages(v_values, rewards, gamma, 0.0)
 
 
 def standardized_advantages(advantage: Tensor, center: bool = True) -> Tensor:

@@ -149,6 +149,12 @@ SAC_ORACLE = "configs/overlays/sac_oracle.yaml"
 REACH_TPRL_PAIRS = ("--data.init_args.setting.init_args.trajectories_per_task", "40")
 LONG_VALUE_PHASE = ("--model.init_args.value_epochs", "12", "--trainer.max_epochs", "16")
 NORMALIZED = ("--model.init_args.normalize_inputs", "true")
+# the advantage stage's oracle (issue 17, point 5): A* of the SAC oracle served with the data, no value phase; the
+# config's 4 policy epochs
+ORACLE_ADVANTAGE = (*REACH_TPRL_PAIRS, *NORMALIZED, "--data.init_args.setting.init_args.oracle_advantages", "true",
+                    "--model.init_args.advantage", "oracle", "--model.init_args.value_epochs", "0",
+                    "--trainer.max_epochs", "4")
+WIDER = ("--model.init_args.n_layer", "4", "--model.init_args.n_embd", "128")
 
 
 def _reach_tprl_runs() -> tuple[Run, ...]:
@@ -336,6 +342,27 @@ TABLES = {t.name: t for t in (
           _reach_normalized_runs(), evaluations=(Evaluation("", ("--greedy",)),),
           baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
           budget="≈ 10–25 min per fit on 1 core (the data from metaworld_tprl_sac); ICRG after its RewardGen"),
+    Table("metaworld_dit_oracle_advantage", "Meta-World Reach T-PRL (metaworld_tprl_sac's trajectories, 40 pairs per "
+          "goal): DIT on true rewards whose advantage stage is its oracle, the SAC oracle's A*(s_h, a_h) of each "
+          "behavior action, with standardized inputs (η = 1, also with 4 layers × 128; seed 0 also at η = 0.1, for 16 "
+          "epochs, and on a 4× larger dataset of the same recipe), beside the plain behavior clone (η = 10⁶): can a "
+          "weighted clone of the 50% checkpoint beat the behavior when its weights are right?",
+          (Run("DIT oracle advantage", ("configs/dit_metaworld.yaml", SAC_ORACLE), ORACLE_ADVANTAGE),
+           Run("DIT oracle advantage eta0.1", ("configs/dit_metaworld.yaml", SAC_ORACLE),
+               (*ORACLE_ADVANTAGE, "--model.init_args.eta", "0.1"), seeds=(0,)),
+           Run("DIT oracle advantage 16 epochs", ("configs/dit_metaworld.yaml", SAC_ORACLE),
+               (*ORACLE_ADVANTAGE, "--trainer.max_epochs", "16"), seeds=(0,)),
+           Run("DIT oracle advantage 4x128", ("configs/dit_metaworld.yaml", SAC_ORACLE),
+               (*ORACLE_ADVANTAGE, *WIDER)),
+           Run("behavior cloning 4x128", ("configs/dit_metaworld.yaml", SAC_ORACLE),
+               (*ORACLE_ADVANTAGE, *WIDER, "--model.init_args.eta", "1e6"), seeds=(0,)),
+           Run("DIT oracle advantage 160 pairs", ("configs/dit_metaworld.yaml", SAC_ORACLE),
+               (*ORACLE_ADVANTAGE, "--data.init_args.setting.init_args.trajectories_per_task", "160"), seeds=(0,)),
+           # every weight exp(Â/η) ≈ 1: the plain behavior clone the advantages improve on
+           Run("behavior cloning", ("configs/dit_metaworld.yaml", SAC_ORACLE),
+               (*ORACLE_ADVANTAGE, "--model.init_args.eta", "1e6"))),
+          evaluations=(Evaluation("", ("--greedy",)),), contexts=("other_task",),
+          budget="≈ 6 min per 4-epoch fit on 1 core beside another fit, after generating the data with A* (≈ 5 min)"),
     Table("metaworld_dpt_context_source", "Meta-World Reach, the paper's recipe: can DPT read the goal from its "
           "context's rewards? DPT trained on reward contexts of SAC's 50% checkpoint (DIT's data policy) or of the "
           "20/40/80% ones in turn, instead of the converged policy's",

@@ -102,14 +102,16 @@ def chunks(n: int, limit: int | None, description: str) -> Iterator[tuple[slice,
 
 
 def rollout_behavior(family: TaskFamily, tasks: np.ndarray, mixing: np.ndarray, rng: np.random.Generator,
-                     episodes: bool, progress: bool, description: str, state_source: str = "rollout"
-                     ) -> dict[str, np.ndarray]:
+                     episodes: bool, progress: bool, description: str, state_source: str = "rollout",
+                     advantages: bool = False) -> dict[str, np.ndarray]:
     """One trajectory of the mixed policy π_p per row of ``tasks`` (p per row in ``mixing``).
 
     ``episodes`` picks the family's episode rollouts (T-PRL) or its context process (reward contexts,
     whose states come from ``state_source``, see ``context_process``).
     Returns ``states`` [N, H, S] (s_h before acting), ``actions`` [N, H, ...], latent ``rewards`` [N, H],
-    ``next_states`` [N, H, S] and the oracle's actions at the visited states ``optimal`` (oracle only).
+    ``next_states`` [N, H, S] and the oracle's actions at the visited states ``optimal`` (oracle only); with
+    ``advantages``, also the optimal advantage of each behavior action, A*(s_h, a_h) = u(s_h, a_h) − u(s_h, π*(s_h))
+    [N, H] with u the oracle's ``utility`` (oracle only; it draws nothing from ``rng``).
     """
     n, horizon, oracle = len(tasks), family.horizon, family.oracle
     spec = family.action_spec
@@ -119,6 +121,8 @@ def rollout_behavior(family: TaskFamily, tasks: np.ndarray, mixing: np.ndarray, 
            "rewards": np.empty((n, horizon), dtype=np.float32),
            "next_states": np.empty((n, horizon, family.obs_dim), dtype=np.float32),
            "optimal": np.empty((n, horizon, *act_shape), dtype=family.action_dtype)}
+    if advantages:
+        out["advantages"] = np.empty((n, horizon), dtype=np.float32)
     for rows, label in chunks(n, family.max_parallel, description):
         roll = (family.episode_rollouts(tasks[rows], rng) if episodes
                 else context_process(family, tasks[rows], rng, state_source))
@@ -127,7 +131,11 @@ def rollout_behavior(family: TaskFamily, tasks: np.ndarray, mixing: np.ndarray, 
                 state = roll.oracle_state()
                 out["states"][rows, h] = roll.observations()
                 a = oracle.behavior_actions(state, mixing[rows], rng)
-                out["actions"][rows, h], out["optimal"][rows, h] = a, oracle.optimal_actions(state)
+                optimal = oracle.optimal_actions(state)
+                out["actions"][rows, h], out["optimal"][rows, h] = a, optimal
+                if advantages:
+                    utility = oracle.utility(state, np.stack([a, optimal]))
+                    out["advantages"][rows, h] = utility[0] - utility[1]
                 out["next_states"][rows, h], out["rewards"][rows, h] = roll.step(a)
     return out
 

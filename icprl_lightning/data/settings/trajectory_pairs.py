@@ -45,10 +45,11 @@ from icprl_lightning.data.settings.base import (
 from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.families.base import QUALITIES, TaskFamily
 from icprl_lightning.preferences import label_agreement
-from icprl_lightning.validation import HyperparameterError, check_interval
+from icprl_lightning.validation import HyperparameterError, check_choice, check_interval
 
 PAIR_FIELDS = ("states_a", "actions_a", "states_b", "actions_b", "preferred")
 LABELED_FIELDS = ("states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b")
+ADVANTAGE_FIELDS = ("advantages_a", "advantages_b")  # A*(s_h, a_h), RewardTrajectories(oracle_advantages=True)
 
 
 def label_trajectory_pairs(states: np.ndarray, actions: np.ndarray, rewards: np.ndarray, n: int,
@@ -88,6 +89,7 @@ class TrajectoryPairs(MDPSetting):
     kind = "trajectory_preference"
 
     stores_labels = True  # False: the kind keeps the true rewards instead (``RewardTrajectories``)
+    oracle_advantages = False  # RewardTrajectories only: also keep each action's A*
 
     def __init__(self, bt_temperature: float = 1.0, pretraining_target: float = 0.5,
                  trajectories_per_task: int = 60, annotator: Annotator | None = None, **kwargs: Any) -> None:
@@ -137,9 +139,12 @@ class TrajectoryPairs(MDPSetting):
                  ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         n, k = len(tasks), 3 if evaluation else 2
         roll = rollout_behavior(family, np.tile(tasks, (k, *[1] * (tasks.ndim - 1))), np.tile(mixing[quality], k),
-                                rng, episodes=True, progress=progress, description=description)
+                                rng, episodes=True, progress=progress, description=description,
+                                advantages=self.oracle_advantages)
         arrays, rewards, stats = label_trajectory_pairs(roll["states"], roll["actions"], roll["rewards"], n,
                                                         self.annotator, rng, behavior=evaluation, tasks=tasks)
+        if self.oracle_advantages:
+            rewards.update(advantages_a=roll["advantages"][:n], advantages_b=roll["advantages"][n:2 * n])
         visited = np.concatenate([roll["states"][:n], roll["states"][n:2 * n]], axis=1)  # ξ_a ++ ξ_b in time
         optimal = np.concatenate([roll["optimal"][:n], roll["optimal"][n:2 * n]], axis=1)
         arrays = self.stored(arrays, rewards)
@@ -164,13 +169,27 @@ class TrajectoryPairs(MDPSetting):
 
 
 class RewardTrajectories(TrajectoryPairs):
-    """The same trajectories as ``TrajectoryPairs`` with their true rewards instead of labels (DIT)."""
+    """The same trajectories as ``TrajectoryPairs`` with their true rewards instead of labels (DIT).
+
+    ``oracle_advantages`` also stores and serves A*(s_h, a_h) of every behavior action (``advantages_a``,
+    ``advantages_b``; the oracle's ``utility`` against its own action, ``rollout_behavior``): the advantage
+    stage's oracle, for DIT's ``advantage: oracle``. The states, actions and rewards stay the same bytes.
+    """
 
     kind = "reward_trajectory"
     stores_labels = False
 
+    def __init__(self, oracle_advantages: bool = False, **kwargs: Any) -> None:
+        check_choice(type(self).__name__, "oracle_advantages", oracle_advantages, (True, False))
+        self.oracle_advantages = oracle_advantages
+        super().__init__(**kwargs)
+
+    def knobs(self) -> dict[str, Any]:
+        # recorded only when on, so that the datasets made before the option keep their identity
+        return {**super().knobs(), **({"oracle_advantages": True} if self.oracle_advantages else {})}
+
     def batch_fields(self) -> tuple[str, ...]:
-        return LABELED_FIELDS
+        return (*LABELED_FIELDS, *ADVANTAGE_FIELDS) if self.oracle_advantages else LABELED_FIELDS
 
     def stored(self, arrays: dict[str, np.ndarray], rewards: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         arrays.update(rewards)
