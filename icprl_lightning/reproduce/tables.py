@@ -342,11 +342,12 @@ TABLES = {t.name: t for t in (
           _reach_normalized_runs(), evaluations=(Evaluation("", ("--greedy",)),),
           baselines=("SAC from scratch (20 episodes)=docs/results/sac_from_scratch_metaworld.json",),
           budget="≈ 10–25 min per fit on 1 core (the data from metaworld_tprl_sac); ICRG after its RewardGen"),
-    Table("metaworld_dit_oracle_advantage", "Meta-World Reach T-PRL (metaworld_tprl_sac's trajectories, 40 pairs per "
-          "goal): DIT on true rewards whose advantage stage is its oracle, the SAC oracle's A*(s_h, a_h) of each "
-          "behavior action, with standardized inputs (η = 1, also with 4 layers × 128; seed 0 also at η = 0.1, for 16 "
-          "epochs, and on a 4× larger dataset of the same recipe), beside the plain behavior clone (η = 10⁶): can a "
-          "weighted clone of the 50% checkpoint beat the behavior when its weights are right?",
+    # Can a weighted clone of the 50% checkpoint beat the behavior when its weights are right? DIT on true rewards
+    # whose advantage stage is its oracle, the SAC oracle's A*(s_h, a_h) of each behavior action, standardized inputs
+    # (η = 1, also 4 layers × 128; seed 0 also at η = 0.1, for 16 epochs, and on a 4× larger dataset of the same
+    # recipe), beside the plain behavior clone (η = 10⁶).
+    Table("metaworld_dit_oracle_advantage", "Meta-World Reach T-PRL (40 SAC 50% pairs per goal, standardized "
+          "inputs): DIT weighted by the oracle's A*, and the plain behavior clone",
           (Run("DIT oracle advantage", ("configs/dit_metaworld.yaml", SAC_ORACLE), ORACLE_ADVANTAGE),
            Run("DIT oracle advantage eta0.1", ("configs/dit_metaworld.yaml", SAC_ORACLE),
                (*ORACLE_ADVANTAGE, "--model.init_args.eta", "0.1"), seeds=(0,)),
