@@ -159,6 +159,10 @@ CALLBACK_NEEDS: dict[str, tuple[str, ...]] = {
     "InContextRolloutCallback": ("evaluation_suites",),
     "HeldOutPairAccuracyCallback": ("heldout_pairs",),
 }
+# what serves a batch field a model may read beyond its context kind's own
+_ORACLE_ADVANTAGES = ("reward_trajectory data with the oracle's A* "
+                      "(--data.init_args.setting.init_args.oracle_advantages true)")
+_FIELD_HINTS = {"advantages_a": _ORACLE_ADVANTAGES, "advantages_b": _ORACLE_ADVANTAGES}
 _FEATURE_HINTS = {
     "bandit_suites": "dueling-bandit data (setting icprl_lightning.data.settings.BanditDuels)",
     "evaluation_suites": "data with held-out in-context rollouts (an MDP setting: StepPreferences, "
@@ -203,6 +207,14 @@ def pairing_errors(model: Any, datamodule: Any, callbacks: Iterable[Any] = ()) -
         if needs and has is False:
             errors.append(f"{m_name} (as configured) needs {d_name} with {flag}: true; set "
                           f"--data.init_args.{flag} true")
+    fields = tuple(getattr(model, "needs_batch_fields", ()))
+    served = getattr(datamodule, "batch_fields", None)
+    if fields and callable(served):
+        missing = [f for f in fields if f not in served()]
+        if missing:
+            hints = sorted({_FIELD_HINTS.get(f, f) for f in missing})
+            errors.append(f"{m_name} (as configured) reads the batch fields {missing}, which {d_name} does not serve: "
+                          f"it needs {', '.join(hints)}")
     for cb in callbacks:
         needs = getattr(cb, "requires_data", None)
         if needs is None:

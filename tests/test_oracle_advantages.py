@@ -12,7 +12,7 @@ from icprl_lightning.families.darkroom.oracle import optimal_advantage
 from icprl_lightning.methods.dit import DITModule, swap_roles
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.losses import advantage_weighted_loss, standardized_advantages
-from icprl_lightning.validation import HyperparameterError
+from icprl_lightning.validation import HyperparameterError, check_pairing
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -66,6 +66,15 @@ def test_dit_oracle_advantage_weights_the_policy_by_the_served_a_star(with_oracl
     batch = {k: v for k, v in batch.items() if not k.startswith("advantages")}
     with pytest.raises(KeyError, match="oracle_advantages"):
         model.loss(batch)
+
+
+def test_pairing_names_the_missing_oracle_advantages_before_a_fit(with_oracle, data_root):
+    model = DITModule(**ENV, **SIZES, value_epochs=0, advantage="oracle")
+    check_pairing(model, with_oracle)  # served: no error
+    plain = darkroom_data("reward_trajectory", root_dir=data_root, **TINY)
+    with pytest.raises(HyperparameterError, match="oracle_advantages true"):
+        check_pairing(model, plain)
+    check_pairing(DITModule(**ENV, **SIZES), plain)  # the other advantages read no extra field
 
 
 def test_icrg_refuses_the_oracle_advantage():

@@ -151,13 +151,19 @@ class DITModule(InContextModule):
 
     def advantages(self, context: RewardTrajectoryContext, scored: RewardTrajectoryContext) -> Tensor:
         """Â for every step of ``scored`` before normalization -> (B, H): Q̂ − V̂, V̂'s one-step TD error, or the
-        return-to-go over V̂ (Q̂ − V̂ under ``advantage: oracle``, whose A* comes with the batch)."""
+        return-to-go over V̂ (under ``advantage: oracle`` the policy reads A* from the batch instead,
+        ``policy_advantages``; this then gives Q̂ − V̂)."""
         if self.hparams.advantage == "td":
             return td_advantages(self.v_value(context, scored.states), scored.rewards, self.hparams.gamma)
         if self.hparams.advantage == "return_to_go":
             return return_to_go_advantages(self.v_value(context, scored.states), scored.rewards, self.hparams.gamma)
         q, v = self.values(context, scored)
         return q - v
+
+    @property
+    def needs_batch_fields(self) -> tuple[str, ...]:
+        """Fields beyond the reward trajectories that the loss reads (checked against the data before a fit)."""
+        return ORACLE_FIELDS if self.hparams.advantage == "oracle" else ()
 
     def policy_advantages(self, batch: dict[str, Tensor], context: RewardTrajectoryContext,
                           scored: RewardTrajectoryContext) -> Tensor:
