@@ -61,7 +61,8 @@ def test_dit_oracle_advantage_weights_the_policy_by_the_served_a_star(with_oracl
     torch.testing.assert_close(model.loss(batch)[0], expected)
     # Q̂ and V̂ play no part: moving them leaves the loss as it is
     with torch.no_grad():
-        model.v_value.apply(lambda m: [p.add_(1.0) for p in m.parameters(recurse=False)])
+        for estimator in (model.q_value, model.v_value):
+            estimator.apply(lambda m: [p.add_(1.0) for p in m.parameters(recurse=False)])
     torch.testing.assert_close(model.loss(batch)[0], expected)
     batch = {k: v for k, v in batch.items() if not k.startswith("advantages")}
     with pytest.raises(KeyError, match="oracle_advantages"):

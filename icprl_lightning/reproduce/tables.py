@@ -363,7 +363,8 @@ TABLES = {t.name: t for t in (
            Run("behavior cloning", ("configs/dit_metaworld.yaml", SAC_ORACLE),
                (*ORACLE_ADVANTAGE, "--model.init_args.eta", "1e6"))),
           evaluations=(Evaluation("", ("--greedy",)),), contexts=("other_task",),
-          budget="≈ 6 min per 4-epoch fit on 1 core beside another fit, after generating the data with A* (≈ 5 min)"),
+          budget="≈ 3–6 min per 4-epoch fit on 1 core beside another fit; the first also generates the data with A* "
+                 "(seed 0: 527 s in all)"),
     Table("metaworld_dpt_context_source", "Meta-World Reach, the paper's recipe: can DPT read the goal from its "
           "context's rewards? DPT trained on reward contexts of SAC's 50% checkpoint (DIT's data policy) or of the "
           "20/40/80% ones in turn, instead of the converged policy's",
