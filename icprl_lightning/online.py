@@ -195,7 +195,7 @@ class OnlineAgent(Agent):
         if context < 1:
             raise ValueError(f"batch_size must be >= 1, got {context}")
         self.context = self._empty_context(context)
-        self.cache = self.policy.transformer.empty_cache(context, self.device) if self.use_cache else None
+        self.cache = self.policy.empty_cache(context, self.device) if self.use_cache else None
 
     @torch.no_grad()
     def outputs(self, obs: Tensor) -> Tensor:
@@ -243,7 +243,7 @@ class OnlineAgent(Agent):
             raise ValueError(f"observe: {step.batch_size} comparisons for {self.context.batch_size} tasks")
         step = step.to(self.device)
         if self.use_cache:
-            self.policy.transformer.extend(self.cache, self.policy.tokenizer(step))
+            self.policy.extend(self.cache, step)
         self.context = StepPreferenceContext(*(torch.cat([old, new], dim=1) for old, new in zip(
             (self.context.states, self.context.actions, self.context.alt_actions, self.context.preferred),
             (step.states, step.actions, step.alt_actions, step.preferred), strict=True)))

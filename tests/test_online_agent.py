@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from icprl_lightning import OnlineAgent, StepPreferenceContext
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.methods.icpo import ICPOModule
-from icprl_lightning.models.policy import InContextPolicy
+from icprl_lightning.models.policy import LAYOUTS, InContextPolicy
 from icprl_lightning.models.transformer import CausalTransformer
 from icprl_lightning.online import PAIR_RULES, SampledPair, TopTwo, UniformPair
 
@@ -19,13 +19,19 @@ TOL = dict(atol=1e-5, rtol=1e-5)
 
 
 def _policy(state_dim: int, spec: ActionSpec, max_context: int = 12, n_layer: int = 2, seed: int = 0,
-            kind: str = "step_preference") -> InContextPolicy:
-    """A random untrained policy, its weights drawn wider than the init's so that every token moves the outputs."""
+            kind: str = "step_preference", layout: str = "appended", normalize_inputs: bool = False
+            ) -> InContextPolicy:
+    """A random untrained policy, its weights drawn wider than the init's so that every token moves the outputs
+    (with ``normalize_inputs``, statistics that are far from the identity)."""
     torch.manual_seed(seed)
-    policy = InContextPolicy(kind, state_dim, spec, n_layer=n_layer, n_embd=16, n_head=2, max_context=max_context)
+    policy = InContextPolicy(kind, state_dim, spec, n_layer=n_layer, n_embd=16, n_head=2, max_context=max_context,
+                             layout=layout, normalize_inputs=normalize_inputs)
     with torch.no_grad():
         for p in policy.parameters():
             p.normal_(0.0, 0.3)
+        if normalize_inputs:
+            policy.normalizer.state_mean.fill_(2.0)
+            policy.normalizer.state_std.fill_(0.25)
     return policy.eval()
 
 
@@ -63,11 +69,15 @@ SPECS = [ActionSpec(discrete=True, size=5), ActionSpec(discrete=False, size=3),
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(spec_index=st.integers(0, len(SPECS) - 1), b=st.integers(1, 3), steps=st.integers(1, 7),
-       start=st.integers(0, 3), n_layer=st.integers(1, 2), seed=st.integers(0, 2**16))
-def test_appending_one_token_at_a_time_equals_reencoding(spec_index, b, steps, start, n_layer, seed):
+       start=st.integers(0, 3), n_layer=st.integers(1, 2), seed=st.integers(0, 2**16),
+       layout=st.sampled_from(LAYOUTS), normalize=st.booleans())
+def test_appending_one_token_at_a_time_equals_reencoding(spec_index, b, steps, start, n_layer, seed, layout,
+                                                         normalize):
+    """Both layouts (models/policy.py), with and without input standardization (which ``observe`` once skipped)."""
     spec = SPECS[spec_index]
     state_dim = 0 if spec_index == 2 else 2
-    policy = _policy(state_dim, spec, n_layer=n_layer, seed=seed)
+    policy = _policy(state_dim, spec, n_layer=n_layer, seed=seed, layout=layout,
+                     normalize_inputs=normalize and state_dim > 0)
     g = torch.Generator().manual_seed(seed)
     agent = OnlineAgent(policy, seed=seed)
     agent.reset(_initial_context(b, start, state_dim, spec, g) if start else b)

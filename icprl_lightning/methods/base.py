@@ -14,7 +14,7 @@ from torch import Tensor
 
 from icprl_lightning.contexts import ActionSpec, context_from_batch
 from icprl_lightning.models.normalization import InputNormalizer
-from icprl_lightning.models.policy import InContextPolicy
+from icprl_lightning.models.policy import LAYOUTS, InContextPolicy
 from icprl_lightning.validation import check_choice, check_int, check_kind, check_sizes, check_transformer
 
 
@@ -49,8 +49,8 @@ class InContextModule(L.LightningModule):
 
     def __init__(self, context_kind: str, state_dim: int, action_dim: int, discrete: bool, max_context: int,
                  n_layer: int = 3, n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, queries_per_context: int | None = None, normalize_inputs: bool = False
-                 ) -> None:
+                 weight_decay: float = 0.0, queries_per_context: int | None = None, normalize_inputs: bool = False,
+                 layout: str = "appended") -> None:
         owner = type(self).__name__
         check_kind(owner, "context_kind", context_kind)
         check_sizes(owner, state_dim, action_dim)
@@ -58,12 +58,13 @@ class InContextModule(L.LightningModule):
         if queries_per_context is not None:
             check_int(owner, "queries_per_context", queries_per_context, 1)
         check_choice(owner, "normalize_inputs", normalize_inputs, (True, False))
+        check_choice(owner, "layout", layout, LAYOUTS)
         super().__init__()
         self.save_hyperparameters()
         self.context_kind = context_kind
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.policy = InContextPolicy(context_kind, state_dim, self.action_spec, n_layer, n_embd, n_head,
-                                      max_context, dropout, normalize_inputs)
+                                      max_context, dropout, normalize_inputs, layout)
 
     def on_fit_start(self) -> None:
         fit_input_normalizers(self)

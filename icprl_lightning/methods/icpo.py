@@ -25,6 +25,13 @@ No optimal-action labels, no rewards: only the comparisons. Where the scored com
     behavior (which reaches the goal in ≈ 25 steps and then hovers past it) an aligned ICPO acts as if it
     were late in the episode from its first step, moving away from the goal (docs/RESULTS.md,
     "ICPO's clock"); ``scripts/reach_action_probe.py`` shows it.
+* ``"next"``: each context step's own comparison, scored before it is seen: query t sees the first t
+  comparisons of D and scores comparison t + 1 (at its state s_{t+1}), for t = 0..H−1. With
+  ``pair_steps: shuffled`` D's steps are put in a fresh random order per sample and step first, so
+  "the first t" is a random subset and the scored step a random other one (no clock); ``aligned`` keeps
+  the stored order. No second trajectory is read (``pairs: false``). It is what the ``merged`` layout
+  (``models/policy.py``) computes in one causal pass of H tokens, and the only source that layout
+  takes: its tokens hold each step's state ahead of the step's comparison.
 * ``"context"``: the paper's literal form — the comparisons of D itself, each scored with the whole D
   in view (T_θ(a | s_h, D) with D ∋ (s_h, a_h, a'_h, y_h)).
 """
@@ -39,7 +46,7 @@ from icprl_lightning.methods.losses import icpo_continuous_loss, icpo_loss
 from icprl_lightning.models.tokenizers import preferred_first
 from icprl_lightning.validation import HyperparameterError, check_choice, check_nonnegative, check_positive
 
-PAIR_SOURCES = ("other_trajectory", "context")
+PAIR_SOURCES = ("other_trajectory", "next", "context")
 PAIR_STEPS = ("shuffled", "aligned")
 
 
@@ -49,7 +56,7 @@ class ICPOModule(InContextModule):
                  squared_distance: bool = False, n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
                  dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0,
                  queries_per_context: int | None = None, pair_steps: str = "shuffled",
-                 normalize_inputs: bool = False) -> None:
+                 normalize_inputs: bool = False, layout: str = "appended") -> None:
         check_choice("ICPOModule", "pair_source", pair_source, PAIR_SOURCES)
         check_choice("ICPOModule", "pair_steps", pair_steps, PAIR_STEPS)
         check_positive("ICPOModule", "beta", beta)
@@ -60,8 +67,15 @@ class ICPOModule(InContextModule):
                     raise HyperparameterError(f"ICPOModule: {key} applies to continuous actions only (the "
                                               f"Gaussian-mean loss), but this data's actions are discrete; got "
                                               f"{key}={value!r}, must be false")
+        if layout == "merged" and pair_source != "next":
+            raise HyperparameterError(f"ICPOModule: layout 'merged' scores each context step before its comparison "
+                                      f"is seen, which is pair_source 'next'; got pair_source={pair_source!r}")
+        if layout == "merged" and queries_per_context is not None:
+            raise HyperparameterError(f"ICPOModule: layout 'merged' scores all H steps in one pass of H tokens, so "
+                                      f"queries_per_context would not shorten it; got {queries_per_context!r}, "
+                                      "must be null")
         super().__init__("step_preference", state_dim, action_dim, discrete, max_context, n_layer, n_embd,
-                         n_head, dropout, lr, weight_decay, queries_per_context, normalize_inputs)
+                         n_head, dropout, lr, weight_decay, queries_per_context, normalize_inputs, layout)
 
     @property
     def needs_pairs(self) -> bool:  # type: ignore[override]
@@ -69,7 +83,8 @@ class ICPOModule(InContextModule):
         return self.hparams.pair_source == "other_trajectory"
 
     def scored_steps(self, batch_size: int, length: int, device: torch.device) -> Tensor:
-        """[B, H]: the step of the other trajectory that query position t scores, per sample (``pair_steps``)."""
+        """[B, H]: the step of the other trajectory that query position t scores, per sample (``pair_steps``);
+        for ``pair_source: next``, the order of the context's own steps."""
         if self.hparams.pair_steps == "aligned":
             return torch.arange(length, device=device).expand(batch_size, length)
         return torch.rand(batch_size, length, device=device).argsort(-1)
@@ -85,11 +100,20 @@ class ICPOModule(InContextModule):
             steps = self.scored_steps(context.states.shape[0], t, context.states.device)[:, positions]
             rows = torch.arange(len(steps), device=steps.device)[:, None]
             pairs = self.context(batch, prefix="pair_").map(lambda x: x[rows, steps])
-            visible = positions + 1
+            outputs = self.policy(context, pairs.states, positions + 1)
+        elif hp.pair_source == "next":
+            order = self.scored_steps(context.states.shape[0], t, context.states.device)
+            rows = torch.arange(len(order), device=order.device)[:, None]
+            context = pairs = context.map(lambda x: x[rows, order])
+            if self.policy.merged:
+                outputs = self.policy.next_step_outputs(context)
+            else:
+                positions = self.query_positions(t, context.states.device)
+                pairs = context.map(lambda x: x[:, positions])
+                outputs = self.policy(context, pairs.states, positions)
         else:
             pairs = context
-            visible = torch.full((t,), t, device=context.states.device)
-        outputs = self.policy(context, pairs.states, visible)
+            outputs = self.policy(context, pairs.states, torch.full((t,), t, device=context.states.device))
         plus, minus = preferred_first(pairs)
         if self.action_spec.discrete:
             logp = outputs.log_softmax(-1)

@@ -8,6 +8,8 @@ sequence therefore scores its queries against many context sizes at once, and at
 that sees the whole context is exactly the last token of the sequence:
 
 * ``forward(context, queries, visible)`` — training: all tokens in one pass, mask as above;
+* ``causal(tokens)`` — one causal pass over T tokens with the fused causal kernel (``is_causal``), output at
+  every position: the "merged" layout of ``models/policy.py``, which fuses each query into a context slot;
 * ``encode(context)`` — deployment: run the context once and keep every layer's keys and values;
 * ``query(cache, queries)`` — each act(): run only the new query tokens against the cache;
 * ``empty_cache(batch)`` / ``extend(cache, tokens)`` — online deployment: start from no context and
@@ -44,6 +46,8 @@ class KVCache:
     keys: list[Tensor]    # per layer (B, nh, T + slots, hs)
     values: list[Tensor]  # per layer (B, nh, T + slots, hs)
     length: int           # T, the context tokens
+    # merged layout (models/policy.py): the last context step's token (B, 1, D), added to every query token
+    carry: Tensor | None = None
 
     def reserve(self, n_queries: int) -> None:
         """Make room for ``n_queries`` query slots after the context (copies the cache only when it grows)."""
@@ -81,9 +85,10 @@ class SelfAttention(nn.Module):
         self.dropout = dropout
         self.resid_drop = nn.Dropout(dropout)
 
-    def forward(self, x: Tensor, mask: Tensor | None, past: tuple[Tensor, Tensor] | None = None, past_length: int = 0
-                ) -> tuple[Tensor, tuple[Tensor, Tensor]]:
-        """With ``past`` (cache buffers), x's keys/values go into the slots after ``past_length`` in place."""
+    def forward(self, x: Tensor, mask: Tensor | None, past: tuple[Tensor, Tensor] | None = None, past_length: int = 0,
+                causal: bool = False) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+        """With ``past`` (cache buffers), x's keys/values go into the slots after ``past_length`` in place.
+        ``causal`` (without ``mask`` or ``past``): token i sees tokens 0..i, by the fused kernel's ``is_causal``."""
         b, t, c = x.shape
         q, k, v = self.qkv(x).split(c, dim=2)
         q, k, v = (z.view(b, t, self.n_head, c // self.n_head).transpose(1, 2) for z in (q, k, v))  # (B, nh, t, hs)
@@ -93,7 +98,7 @@ class SelfAttention(nn.Module):
             past[1][:, :, past_length:end] = v
             y = decode_attention(q, past[0][:, :, :end], past[1][:, :, :end], mask)
         else:
-            y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask,
+            y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, is_causal=causal,
                                                dropout_p=self.dropout if self.training else 0.0)
         y = y.transpose(1, 2).contiguous().view(b, t, c)
         return self.resid_drop(self.proj(y)), (k, v)
@@ -108,9 +113,9 @@ class Block(nn.Module):
         self.mlp = nn.Sequential(nn.Linear(n_embd, 4 * n_embd), nn.GELU(), nn.Linear(4 * n_embd, n_embd),
                                  nn.Dropout(dropout))
 
-    def forward(self, x: Tensor, mask: Tensor | None, past: tuple[Tensor, Tensor] | None = None, past_length: int = 0
-                ) -> tuple[Tensor, tuple[Tensor, Tensor]]:
-        a, kv = self.attn(self.ln1(x), mask, past, past_length)
+    def forward(self, x: Tensor, mask: Tensor | None, past: tuple[Tensor, Tensor] | None = None, past_length: int = 0,
+                causal: bool = False) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+        a, kv = self.attn(self.ln1(x), mask, past, past_length, causal)
         x = x + a
         return x + self.mlp(self.ln2(x)), kv
 
@@ -161,6 +166,19 @@ class CausalTransformer(nn.Module):
         for block in self.blocks:
             x, _ = block(x, mask)
         return self.ln_f(x[:, t:])
+
+    def causal(self, tokens: Tensor) -> Tensor:
+        """tokens (B, T, D) -> outputs (B, T, D), token i attending to tokens 0..i at position i.
+
+        The same function as ``encode``'s pass (whose outputs it keeps, not its keys), by the fused causal
+        kernel: no mask tensor, and T tokens where ``forward`` runs T context + Q query tokens.
+        """
+        t = tokens.shape[1]
+        self._check_length(t)
+        x = self.drop(tokens + self.pos.weight[:t])
+        for block in self.blocks:
+            x, _ = block(x, None, causal=True)
+        return self.ln_f(x)
 
     def encode(self, context: Tensor) -> KVCache:
         """Run the context (B, T, D) once; keep each layer's keys and values (with one query slot after them).
