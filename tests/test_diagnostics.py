@@ -65,8 +65,38 @@ def test_trajectory_pairs_flip_their_one_label():
 def test_reward_contexts_have_no_label_diagnostics():
     context = RewardContext(states=torch.zeros(2, 3, 2), actions=torch.zeros(2, 3).long(),
                             rewards=torch.zeros(2, 3), next_states=torch.zeros(2, 3, 2))
-    assert applicable(context, DIAGNOSTICS) == ["own", "other_task"]
+    assert applicable(context, DIAGNOSTICS) == ["own", "other_task", "shuffled_order"]
     with pytest.raises(ValueError, match="no"):
         diagnose(context, "flipped_labels", np.arange(2))
     with pytest.raises(ValueError, match="unknown context diagnostic"):
         diagnose(context, "shuffled", np.arange(2))
+
+
+def test_shuffled_order_permutes_each_rows_steps_together():
+    context = _step_context()
+    tasks = np.repeat(np.arange(3), 2)
+    first, again, other = (diagnose(context, "shuffled_order", tasks, seed=s) for s in (0, 0, 1))
+    assert torch.equal(first.states, again.states) and not torch.equal(first.states, other.states)
+    assert not torch.equal(first.states, context.states)
+    for row in range(context.batch_size):  # the same (state, actions, label) steps, each kept whole
+        def step(c, t, row=row):
+            return (int(c.actions[row, t]), int(c.alt_actions[row, t]), float(c.preferred[row, t]))
+        steps = {tuple(context.states[row, t].tolist()): step(context, t) for t in range(context.states.shape[1])}
+        for t in range(context.states.shape[1]):
+            assert steps[tuple(first.states[row, t].tolist())] == step(first, t)
+        assert torch.equal(first.states[row].sort(0).values, context.states[row].sort(0).values)
+    # each row has its own order: where each shuffled step came from differs between rows
+    def origin(row: int) -> list[int]:
+        stored = [tuple(x.tolist()) for x in context.states[row]]
+        return [stored.index(tuple(x.tolist())) for x in first.states[row]]
+    assert origin(0) != origin(1)
+
+
+def test_trajectory_pairs_have_no_order_diagnostic():
+    g = torch.Generator().manual_seed(0)
+    pair = TrajectoryPreferenceContext(states_a=torch.rand(4, 5, 2, generator=g), actions_a=torch.zeros(4, 5).long(),
+                                       states_b=torch.rand(4, 5, 2, generator=g), actions_b=torch.ones(4, 5).long(),
+                                       preferred=torch.tensor([1.0, 0.0, 1.0, 1.0]))
+    assert "shuffled_order" not in applicable(pair, DIAGNOSTICS)
+    with pytest.raises(ValueError, match="context of steps"):
+        diagnose(pair, "shuffled_order", np.arange(4))

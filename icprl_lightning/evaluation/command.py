@@ -28,10 +28,11 @@ depend on the context, so the same value is shown for every quality).
 
 ``--contexts`` adds the context diagnostics of ``evaluation.diagnostics`` beside each run's own-context
 row: ``flipped_labels`` (every label inverted), ``random_labels`` (fair coins), ``other_task`` (another
-held-out task's context). The label diagnostics apply to runs whose contexts have labels (preference
-methods); the others get only ``other_task``. Writes ``<out>.json`` (all numbers; the diagnostics under
-``diagnostics``), ``<out>.md`` (the tables) and ``<out>.png``, and prints the JSON (without the
-bandits' per-h curves).
+held-out task's context), ``shuffled_order`` (the same steps in a random order). The label diagnostics
+apply to runs whose contexts have labels (preference methods), ``shuffled_order`` to contexts of steps
+(I-PRL, DPT's reward contexts, bandit duels); ``other_task`` to every run. Writes ``<out>.json`` (all
+numbers; the diagnostics under ``diagnostics``), ``<out>.md`` (the tables) and ``<out>.png``, and prints the
+JSON (without the bandits' per-h curves).
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "(behavior and optimal/expert; bandits: DTS and behaviour; default: the first)")
     parser.add_argument("--contexts", nargs="+", choices=DIAGNOSTICS, default=["own"],
                         help="context diagnostics beside the own-context rows: flipped_labels, random_labels, "
-                        "other_task (evaluation.diagnostics)")
+                        "other_task, shuffled_order (evaluation.diagnostics)")
     parser.add_argument("--title", default="held-out tasks", help="figure title")
     parser.add_argument("--out", required=True, help="output path without extension")
     args = parser.parse_args(argv)

@@ -9,7 +9,12 @@ evaluation context in exactly one stated way, all else equal (states, actions, t
 * ``random_labels`` — every label replaced by a fair coin flip (fixed by the diagnostic's seed): the
   labels say nothing. What a policy still earns here, it earns from the states and actions alone;
 * ``other_task`` — the whole context of another held-out task (the next task, same quality): nothing
-  in it is about this task. What a policy still earns here, it earns without its context.
+  in it is about this task. What a policy still earns here, it earns without its context;
+* ``shuffled_order`` — the same steps in a random order per row (fixed by the diagnostic's seed), for
+  contexts of per-step comparisons or transitions (I-PRL, DPT's reward contexts, bandit duels). The
+  paper's D is a set; a policy that reads it as one earns the same here. One trained on shuffled orders
+  (ICPO's ``pair_steps: shuffled``) is deployed on the stored, episode-ordered context, which this
+  diagnostic turns back into the kind of order it was trained on.
 
 So own − random_labels is what the labels add, random_labels − other_task what the rest of the context
 (its states, its behavior actions) adds. The label diagnostics apply to contexts with labels
@@ -24,8 +29,11 @@ from typing import Any
 import numpy as np
 import torch
 
-DIAGNOSTICS = ("own", "random_labels", "flipped_labels", "other_task")
+from icprl_lightning.contexts import RewardContext, StepPreferenceContext
+
+DIAGNOSTICS = ("own", "random_labels", "flipped_labels", "other_task", "shuffled_order")
 LABEL_DIAGNOSTICS = ("random_labels", "flipped_labels")
+ORDER_DIAGNOSTICS = ("shuffled_order",)
 
 
 def has_labels(context: Any) -> bool:
@@ -44,6 +52,19 @@ def random_labels(context: Any, seed: int) -> Any:
     return replace(context, preferred=coins.to(context.preferred.dtype))
 
 
+def has_step_order(context: Any) -> bool:
+    """Contexts whose every field is indexed [row, step, ...]: per-step comparisons or transitions."""
+    return isinstance(context, StepPreferenceContext | RewardContext)
+
+
+def shuffled_order(context: Any, seed: int) -> Any:
+    """The context with each row's steps in a random order drawn from ``seed`` (the same steps, reordered)."""
+    b, t = context.states.shape[:2]
+    order = torch.rand(b, t, generator=torch.Generator().manual_seed(seed)).argsort(-1)
+    rows = torch.arange(b)[:, None]
+    return context.map(lambda x: x[rows, order.to(x.device)])
+
+
 def other_task(context: Any, task_index: np.ndarray) -> Any:
     """Each row's context replaced by the same row of the *next* task (rows task-major, equal counts per task)."""
     per_task = int(np.bincount(task_index).max())
@@ -58,18 +79,25 @@ def diagnose(context: Any, diagnostic: str, task_index: np.ndarray, seed: int = 
         raise ValueError(f"unknown context diagnostic {diagnostic!r}; known: {list(DIAGNOSTICS)}")
     if diagnostic in LABEL_DIAGNOSTICS and not has_labels(context):
         raise ValueError(f"{diagnostic} needs a context with preference labels; {type(context).__name__} has none")
+    if diagnostic in ORDER_DIAGNOSTICS and not has_step_order(context):
+        raise ValueError(f"{diagnostic} needs a context of steps ([row, step, ...] fields); "
+                         f"{type(context).__name__} is not one")
     if diagnostic == "flipped_labels":
         return flipped_labels(context)
     if diagnostic == "random_labels":
         return random_labels(context, seed)
     if diagnostic == "other_task":
         return other_task(context, task_index)
+    if diagnostic == "shuffled_order":
+        return shuffled_order(context, seed)
     return context
 
 
 def applicable(context: Any, diagnostics: tuple[str, ...] | list[str]) -> list[str]:
-    """The diagnostics that apply to ``context`` (label ones only where it has labels), in order."""
-    return [d for d in diagnostics if d not in LABEL_DIAGNOSTICS or has_labels(context)]
+    """The diagnostics that apply to ``context`` (label ones only where it has labels, order ones only where it
+    has steps), in order."""
+    return [d for d in diagnostics if (d not in LABEL_DIAGNOSTICS or has_labels(context))
+            and (d not in ORDER_DIAGNOSTICS or has_step_order(context))]
 
 
 def diagnose_suite(suite: Any, diagnostic: str, seed: int = 0) -> Any:

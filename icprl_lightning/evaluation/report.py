@@ -151,7 +151,7 @@ def rollout_markdown(payload: dict) -> str:
 
 
 DIAGNOSTIC_NAMES = {"own": "own context", "random_labels": "random labels", "flipped_labels": "flipped labels",
-                    "other_task": "other task's context"}
+                    "other_task": "other task's context", "shuffled_order": "steps in random order"}
 
 
 def _checkpoints_per_run(payload: dict) -> dict[str, int]:
