@@ -10,7 +10,12 @@ thing of the model's execution, never its function:
   supervised predictions per sample as DPT's reference; k < 100 is a sequence of 100 + k tokens instead of
   200 and k predictions per sample);
 * ``bf16``: bf16 autocast, what ``--trainer.precision bf16-mixed`` runs on CPU;
-* ``compile``: ``torch.compile`` of the policy network (its compile time is printed, not counted).
+* ``compile``: ``torch.compile`` of the policy network (its compile time is printed, not counted);
+* ``merged``: the merged layout (``layout: merged``, ``pair_source: next``; ``models/policy.py``): each query
+  state summed into the token after the comparisons it sees, so a sample is one causal pass of 100 tokens
+  with 100 predictions. This one changes what the model computes (a query's state enters the sequence in
+  a different slot, and it scores the context's own next comparison instead of another trajectory's):
+  ``learning_speed.py`` compares what the layouts learn per second.
 
 Sizes: DPT's small DarkRoom model (4 layers, 32 wide, batch 64), the paper's I-PRL model (6 layers, 256
 wide, batch 32) and this project's CPU default (3 layers, 64 wide, batch 32). With the ``bench`` extra
@@ -38,12 +43,18 @@ H = 100
 SIZES = {
     "dpt_small_4L_32d_b64": (dict(n_layer=4, n_embd=32, batch=64),
                              [dict(heads=4), dict(heads=1), dict(heads=1, k=25), dict(heads=1, k=10),
-                              dict(heads=4, compile=True), dict(heads=1, compile=True)]),
+                              dict(heads=4, compile=True), dict(heads=1, compile=True),
+                              dict(heads=4, merged=True), dict(heads=1, merged=True),
+                              dict(heads=4, merged=True, compile=True), dict(heads=1, merged=True, compile=True)]),
     "paper_6L_256d_b32": (dict(n_layer=6, n_embd=256, batch=32),
                           [dict(heads=8), dict(heads=8, bf16=True), dict(heads=1, bf16=True),
                            dict(heads=8, bf16=True, compile=True), dict(heads=8, bf16=True, k=25),
-                           dict(heads=8, bf16=True, k=10, compile=True)]),
-    "default_3L_64d_b32": (dict(n_layer=3, n_embd=64, batch=32), [dict(heads=4), dict(heads=1), dict(heads=1, k=25)]),
+                           dict(heads=8, bf16=True, k=10, compile=True), dict(heads=8, merged=True),
+                           dict(heads=8, bf16=True, merged=True), dict(heads=1, bf16=True, merged=True),
+                           dict(heads=8, bf16=True, merged=True, compile=True),
+                           dict(heads=1, bf16=True, merged=True, compile=True)]),
+    "default_3L_64d_b32": (dict(n_layer=3, n_embd=64, batch=32), [dict(heads=4), dict(heads=1), dict(heads=1, k=25),
+                                                                  dict(heads=4, merged=True)]),
 }
 
 
@@ -59,17 +70,20 @@ def batch_for(b: int, t: int = H) -> dict[str, torch.Tensor]:
 
 def name_of(variant: dict) -> str:
     parts = [f"{variant['heads']}head", f"k{variant.get('k', H)}"]
-    return "_".join(parts + [flag for flag in ("bf16", "compile") if variant.get(flag)])
+    return "_".join(parts + [flag for flag in ("merged", "bf16", "compile") if variant.get(flag)])
 
 
 def measure(size: dict, variant: dict, steps: int) -> dict[str, float]:
     torch.manual_seed(0)
     model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=H, n_layer=size["n_layer"],
                        n_embd=size["n_embd"], n_head=variant["heads"], beta=0.1, lam=1.0,
-                       queries_per_context=variant.get("k")).train()
+                       queries_per_context=variant.get("k"),
+                       **(dict(layout="merged", pair_source="next") if variant.get("merged") else {})).train()
     optimizer = model.configure_optimizers()
     batch = batch_for(size["batch"])
-    if variant.get("compile"):
+    if variant.get("compile") and variant.get("merged"):  # its training pass is a method, not forward
+        model.policy.next_step_outputs = torch.compile(model.policy.next_step_outputs)
+    elif variant.get("compile"):
         model.policy = torch.compile(model.policy)
 
     def step() -> None:
