@@ -59,6 +59,7 @@ DARKROOM_METHODS = (("DPT", "configs/dpt_darkroom.yaml"), ("DP2T", "configs/dp2t
 # ICPO as every DarkRoom table was trained before the β × λ sweep picked β = 0.1, λ = 1 (the configs' default since)
 ICPO_BETA1_LAM05 = ("--model.init_args.beta", "1.0", "--model.init_args.lam", "0.5")
 UNIFORM_STATES = "configs/overlays/uniform_states.yaml"
+MERGED = "configs/overlays/merged_layout.yaml"
 # 400 contexts per goal (4× the paper-recipe configs' data), 2 epochs = 2,000 steps, held-out rollouts every 250
 LABEL_INFORMATIVE = ("--data.init_args.setting.init_args.trajectories_per_task", "400",
                      "--trainer.val_check_interval", "250")
@@ -211,7 +212,12 @@ def _reach_runs(recipe: str, scale: int) -> tuple[Run, ...]:
             Run("ICPO", ("configs/icpo_metaworld.yaml", *ipref), data))
     if scale == 1:  # ICPO as it was trained before 2 December (ICPOModule.pair_steps): the context's length a clock
         runs += (Run("ICPO aligned pairs", ("configs/icpo_metaworld.yaml", *ipref),
-                     (*data, "--model.init_args.pair_steps", "aligned"), seeds=(0,)),)
+                     (*data, "--model.init_args.pair_steps", "aligned"), seeds=(0,)),
+                 # issue 12: the merged layout (models/policy.py), the same steps, and its objective (the context's
+                 # own next comparison) in the appended layout
+                 Run("ICPO merged", ("configs/icpo_metaworld.yaml", *ipref, MERGED), data),
+                 Run("ICPO next comparison", ("configs/icpo_metaworld.yaml", *ipref),
+                     (*data, "--model.init_args.pair_source", "next", "--data.init_args.pairs", "false")))
     return runs
 
 
@@ -260,7 +266,15 @@ TABLES = {t.name: t for t in (
     Table("darkroom_ipref_uniform", "DarkRoom I-PRL, label-informative recipe (states drawn uniformly)",
           (*(Run(n, (c, UNIFORM_STATES), LABEL_INFORMATIVE) for n, c in DARKROOM_METHODS),
            Run("ICPO beta1 lam0.5", ("configs/icpo_darkroom.yaml", UNIFORM_STATES),
-               (*LABEL_INFORMATIVE, *ICPO_BETA1_LAM05))),
+               (*LABEL_INFORMATIVE, *ICPO_BETA1_LAM05)),
+           # issue 12: the merged layout (models/policy.py) at the same 2,000 steps and at 5,000 steps, ≈ the
+           # appended layout's wall-clock (benchmarks/learning_speed.py: 2.2–2.6× its steps/s); and its objective
+           # (the context's own next comparison) in the appended layout
+           Run("ICPO merged", ("configs/icpo_darkroom.yaml", UNIFORM_STATES, MERGED), LABEL_INFORMATIVE),
+           Run("ICPO merged 5 epochs", ("configs/icpo_darkroom.yaml", UNIFORM_STATES, MERGED),
+               (*LABEL_INFORMATIVE, "--trainer.max_epochs", "5")),
+           Run("ICPO next comparison", ("configs/icpo_darkroom.yaml", UNIFORM_STATES),
+               (*LABEL_INFORMATIVE, "--model.init_args.pair_source", "next", "--data.init_args.pairs", "false"))),
           baselines=("DQN from scratch=docs/results/dqn_from_scratch_darkroom.json",),
           budget="≈ 8–11 min per fit on 1 core of 2 busy ones (2,000 steps of 32 contexts)"),
     Table("darkroom_lambda_beta", "ICPO on DarkRoom I-PRL: β × λ", _lambda_beta_runs(), contexts=("own",),
