@@ -7,7 +7,7 @@ re-runs the whole sequence at every step (no KV cache, no ``torch.no_grad``), 10
 
     python benchmarks/dpt_reference.py [--threads N]   # needs the bench extra: pip install -e .[bench]
 
-``training_throughput.py`` and ``deployment_throughput.py`` import ``train_samples_per_second`` and
+``training_throughput.py`` and ``deployment_throughput.py`` import ``train_step`` and
 ``deploy_env_steps_per_second`` to print it beside this project's numbers, measured in the same process.
 Prints JSON.
 """
@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 
 import torch
 
@@ -51,7 +52,8 @@ def _tokens(batch: int) -> torch.Tensor:
     return torch.rand(batch, 1 + HORIZON, 2 * STATE_DIM + N_ACTIONS + 1, generator=torch.Generator().manual_seed(0))
 
 
-def train_samples_per_second(n_layer: int, n_embd: int, batch: int, steps: int) -> float:
+def train_step(n_layer: int, n_embd: int, batch: int) -> Callable[[], None]:
+    """One optimizer step of the reference on a fixed batch, warmed up (3 steps already taken)."""
     torch.manual_seed(0)
     model = DPTReference(n_layer, n_embd)
     optimizer = torch.optim.AdamW(model.parameters(), lr=1e-4)
@@ -67,6 +69,11 @@ def train_samples_per_second(n_layer: int, n_embd: int, batch: int, steps: int) 
 
     for _ in range(3):
         step()
+    return step
+
+
+def train_samples_per_second(n_layer: int, n_embd: int, batch: int, steps: int) -> float:
+    step = train_step(n_layer, n_embd, batch)
     start = time.perf_counter()
     for _ in range(steps):
         step()

@@ -1,6 +1,7 @@
 """Training throughput of ICPO (optimizer steps on DarkRoom-shaped batches), beside DPT's reference setup.
 
-    python benchmarks/training_throughput.py [--threads N] [--sizes dpt_small_4L_32d_b64 ...] [--no-reference]
+    python benchmarks/training_throughput.py [--threads N] [--sizes dpt_small_4L_32d_b64 ...] [--repeats 3]
+                                             [--no-reference] [--profile 1head_k100_merged]
 
 One sample is one context of H = 100 comparisons plus its query states. Each variant of a size changes one
 thing of the model's execution, never its function:
@@ -10,12 +11,23 @@ thing of the model's execution, never its function:
   supervised predictions per sample as DPT's reference; k < 100 is a sequence of 100 + k tokens instead of
   200 and k predictions per sample);
 * ``bf16``: bf16 autocast, what ``--trainer.precision bf16-mixed`` runs on CPU;
-* ``compile``: ``torch.compile`` of the policy network (its compile time is printed, not counted);
+* ``compile``: ``torch.compile`` of the policy network (its compile time is in ``warmup_seconds``);
 * ``merged``: the merged layout (``layout: merged``, ``pair_source: next``; ``models/policy.py``): each query
   state summed into the token after the comparisons it sees, so a sample is one causal pass of 100 tokens
   with 100 predictions. This one changes what the model computes (a query's state enters the sequence in
   a different slot, and it scores the context's own next comparison instead of another trajectory's):
   ``learning_speed.py`` compares what the layouts learn per second.
+
+Beside them, ``floor``: the arithmetic any 1-head transformer of that size must do on 100 tokens, alone
+(each layer's four linear maps, its causal attention and residual adds, forward and backward; no embedding,
+normalization, activation, loss or optimizer; ``floor_bf16`` under bf16 autocast). DPT's reference does the same
+arithmetic on 101 tokens, so ``floor``'s ratio to the reference bounds what any 100-token layout of this
+size can reach on this machine: it is the reference's speed if everything else in its step were free.
+
+Timing: each variant takes 3 warm-up steps (``warmup_seconds``; a compile happens there), then ``--repeats``
+timed blocks of ``--steps`` optimizer steps, each block right after a block of the reference. samples/s is
+the median block; ``vs_reference`` is the median ratio of adjacent blocks, so a change of this machine's
+speed during a run (tens of percent, over minutes) moves both sides of each ratio alike.
 
 Sizes: DPT's small DarkRoom model (4 layers, 32 wide, batch 64), the paper's I-PRL model (6 layers, 256
 wide, batch 32) and this project's CPU default (3 layers, 64 wide, batch 32). With the ``bench`` extra
@@ -27,10 +39,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import statistics
 import sys
 import time
+from collections.abc import Callable
+from functools import partial
 
 import torch
+import torch.nn.functional as F
 
 from icprl_lightning.methods.icpo import ICPOModule
 
@@ -73,7 +89,47 @@ def name_of(variant: dict) -> str:
     return "_".join(parts + [flag for flag in ("merged", "bf16", "compile") if variant.get(flag)])
 
 
-def measure(size: dict, variant: dict, steps: int) -> dict[str, float]:
+def block_rate(step: Callable[[], None], steps: int) -> float:
+    """Calls of ``step`` per second over one block of ``steps`` calls."""
+    start = time.perf_counter()
+    for _ in range(steps):
+        step()
+    return steps / (time.perf_counter() - start)
+
+
+class DenseFloor(torch.nn.Module):
+    """Only the linear maps and causal attention of a 1-head pre-LN block stack (see the module docstring)."""
+
+    def __init__(self, n_layer: int, n_embd: int) -> None:
+        super().__init__()
+        self.layers = torch.nn.ModuleList(
+            torch.nn.ModuleList([torch.nn.Linear(n_embd, 3 * n_embd), torch.nn.Linear(n_embd, n_embd),
+                                 torch.nn.Linear(n_embd, 4 * n_embd), torch.nn.Linear(4 * n_embd, n_embd)])
+            for _ in range(n_layer))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        b, t, c = x.shape
+        for qkv, proj, fc, fc_out in self.layers:
+            q, k, v = (z.view(b, t, 1, c).transpose(1, 2) for z in qkv(x).split(c, dim=2))
+            x = x + proj(F.scaled_dot_product_attention(q, k, v, is_causal=True).transpose(1, 2).reshape(b, t, c))
+            x = x + fc_out(fc(x))
+        return x
+
+
+def floor_step(size: dict, bf16: bool) -> Callable[[], None]:
+    torch.manual_seed(0)
+    model = DenseFloor(size["n_layer"], size["n_embd"])
+    x = torch.randn(size["batch"], H, size["n_embd"])
+
+    def step() -> None:
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            out = model(x)
+        out.float().sum().backward()
+
+    return step
+
+
+def icpo_step(size: dict, variant: dict) -> Callable[[], None]:
     torch.manual_seed(0)
     model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=H, n_layer=size["n_layer"],
                        n_embd=size["n_embd"], n_head=variant["heads"], beta=0.1, lam=1.0,
@@ -93,20 +149,43 @@ def measure(size: dict, variant: dict, steps: int) -> dict[str, float]:
         loss.backward()
         optimizer.step()
 
+    return step
+
+
+def measure(step: Callable[[], None], reference: Callable[[], None] | None, batch: int, predictions: int,
+            steps: int, repeats: int) -> tuple[dict[str, float], list[float]]:
+    """Warm ``step`` up (3 calls, timed: a compile happens there), then time ``repeats`` blocks of it, each
+    right after a block of ``reference`` when given: the ratio is the median of these adjacent pairs, so a
+    change of the machine's speed during the run moves both sides of a ratio alike."""
     began = time.perf_counter()
     for _ in range(3):
         step()
-    warmup = time.perf_counter() - began
-    start = time.perf_counter()
-    for _ in range(steps):
+    out: dict[str, float] = {"warmup_seconds": round(time.perf_counter() - began, 1)}
+    rates, reference_rates = [], []
+    for _ in range(repeats):
+        if reference is not None:
+            reference_rates.append(block_rate(reference, steps))
+        rates.append(block_rate(step, steps))
+    samples = statistics.median(rates) * batch
+    out.update({"samples_per_s": round(samples, 1), "predictions_per_sample": predictions,
+                "predictions_per_s": round(samples * predictions)})
+    if reference is not None:
+        out["vs_reference"] = round(statistics.median(r / q for r, q in zip(rates, reference_rates, strict=True)), 2)
+    return out, reference_rates
+
+
+def profile(size_and_variants: tuple[dict, list[dict]], variant_name: str) -> None:
+    size, variants = size_and_variants
+    by_name = {name_of(variant): variant for variant in variants}
+    if variant_name not in by_name:
+        raise SystemExit(f"--profile: no variant {variant_name!r} at this size; choose from {sorted(by_name)}")
+    step = icpo_step(size, by_name[variant_name])
+    for _ in range(5):
         step()
-    samples = steps * size["batch"] / (time.perf_counter() - start)
-    k = variant.get("k", H)
-    out = {"samples_per_s": round(samples, 1), "predictions_per_sample": k,
-           "predictions_per_s": round(samples * k)}
-    if variant.get("compile"):
-        out["warmup_seconds_with_compile"] = round(warmup, 1)
-    return out
+    with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as prof:
+        for _ in range(10):
+            step()
+    print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=25))
 
 
 def main() -> None:
@@ -115,31 +194,44 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None,
                         help="torch intra-op threads (default: torch's own, = the cores); 1 avoids thread "
                              "oversubscription on a shared machine")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="timed blocks per variant, each after a block of the reference; medians are printed")
     parser.add_argument("--sizes", nargs="+", choices=sorted(SIZES), default=list(SIZES))
     parser.add_argument("--no-reference", action="store_true", help="skip DPT's reference even if installed")
+    parser.add_argument("--profile", metavar="VARIANT", default=None,
+                        help="instead of timing, print torch.profiler's table of 10 steps of one variant of the first "
+                             "size (e.g. 1head_k100_merged), operators by their own time")
     args = parser.parse_args()
     if args.threads is not None:
         torch.set_num_threads(args.threads)
-    reference = not args.no_reference and dpt_reference.available()
+    if args.profile is not None:
+        profile(SIZES[args.sizes[0]], args.profile)
+        return
+    with_reference = not args.no_reference and dpt_reference.available()
     results = {}
     for name in args.sizes:
         size, variants = SIZES[name]
         steps = args.steps or (20 if size["n_embd"] <= 64 else 6)
         row: dict = {}
-        if reference and name in dpt_reference.SIZES:
-            ref = dpt_reference.train_samples_per_second(size["n_layer"], size["n_embd"], size["batch"], steps)
-            row["dpt_reference"] = {"samples_per_s": round(ref, 1), "predictions_per_sample": H,
-                                    "predictions_per_s": round(ref * H)}
-        for variant in variants:
-            row[name_of(variant)] = measure(size, variant, steps)
-            if "dpt_reference" in row:
-                row[name_of(variant)]["vs_reference"] = round(
-                    row[name_of(variant)]["samples_per_s"] / row["dpt_reference"]["samples_per_s"], 2)
-            print(f"{name} {name_of(variant)}: {row[name_of(variant)]}", file=sys.stderr, flush=True)
+        reference = (dpt_reference.train_step(size["n_layer"], size["n_embd"], size["batch"])
+                     if with_reference and name in dpt_reference.SIZES else None)
+        steps_of = [("floor", partial(floor_step, size, False), H), ("floor_bf16", partial(floor_step, size, True), H)]
+        steps_of = steps_of[: 2 if size["n_embd"] > 64 else 1]  # bf16 autocast pays only at the wide size
+        steps_of += [(name_of(v), partial(icpo_step, size, v), v.get("k", H)) for v in variants]
+        reference_rates: list[float] = []
+        for key, make_step, predictions in steps_of:
+            row[key], paired = measure(make_step(), reference, size["batch"], predictions, steps, args.repeats)
+            reference_rates += paired
+            print(f"{name} {key}: {row[key]}", file=sys.stderr, flush=True)
+        if reference is not None:
+            samples = statistics.median(reference_rates) * size["batch"]
+            row = {"dpt_reference": {"samples_per_s": round(samples, 1), "predictions_per_sample": H,
+                                     "predictions_per_s": round(samples * H)}} | row
         results[name] = row
     print(json.dumps({"benchmark": "training_samples_per_second", "method": "ICPOModule", "context_length": H,
                       "torch_threads": torch.get_num_threads(),
-                      "reference": "DPT DarkRoom setup (benchmarks/dpt_reference.py)" if reference else
+                      "steps_per_block": args.steps or "20 (width <= 64), 6 (wider)", "repeats": args.repeats,
+                      "reference": "DPT DarkRoom setup (benchmarks/dpt_reference.py)" if with_reference else
                       "not run (pip install -e .[bench] for transformers)", "results": results}, indent=2))
 
 
