@@ -22,7 +22,8 @@ Beside them, ``floor``: the arithmetic any 1-head transformer of that size must 
 (each layer's four linear maps, its causal attention and residual adds, forward and backward; no embedding,
 normalization, activation, loss or optimizer; ``floor_bf16`` under bf16 autocast). DPT's reference does the same
 arithmetic on 101 tokens, so ``floor``'s ratio to the reference bounds what any 100-token layout of this
-size can reach on this machine: it is the reference's speed if everything else in its step were free.
+size can reach on this machine with these matmul and attention kernels: it is the reference's speed if
+everything else in its step were free.
 
 Timing: each variant takes 3 warm-up steps (``warmup_seconds``; a compile happens there), then ``--repeats``
 timed blocks of ``--steps`` optimizer steps, each block right after a block of the reference. samples/s is
