@@ -352,3 +352,16 @@ def test_icpo_beats_uniform_random_duels_on_held_out_problems(tmp_path):
     diff = uniform - icpo
     assert diff.mean() > 3 * diff.std(ddof=1) / np.sqrt(len(diff)), (icpo.mean(), uniform.mean())
     assert icpo.mean() < 0.6 * uniform.mean(), (icpo.mean(), uniform.mean())  # measured: 0.05 vs 0.26
+
+
+def test_a_stateless_policy_builds_without_warnings_and_its_query_token_is_a_learned_vector():
+    """A bandit has no state: the query embedding maps 0 features to its bias. Building it must not warn
+    (nn.Linear's init of the empty weight does, which every bandit run printed), and the bias is trained."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        module = ICPOModule(state_dim=0, action_dim=4, discrete=True, max_context=8, n_layer=1, n_embd=16, n_head=2)
+    embed = module.policy.query_embed
+    assert embed.weight.shape == (16, 0) and embed.bias.requires_grad
+    assert torch.equal(embed(torch.zeros(3, 0)), embed.bias.expand(3, 16))

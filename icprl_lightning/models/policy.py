@@ -23,6 +23,8 @@ query that sees the first v context steps:
 
 from __future__ import annotations
 
+import warnings
+
 import torch
 from torch import Tensor, nn
 
@@ -59,7 +61,9 @@ class InContextPolicy(nn.Module):
         self.action_spec = action_spec
         self.layout = layout
         self.tokenizer = TOKENIZERS[context_kind](state_dim, action_spec, n_embd)
-        self.query_embed = nn.Linear(state_dim, n_embd)
+        with warnings.catch_warnings():  # a bandit has no state (state_dim 0): its query token is the bias alone,
+            warnings.filterwarnings("ignore", "Initializing zero-element tensors", UserWarning)  # nothing to init
+            self.query_embed = nn.Linear(state_dim, n_embd)
         self.transformer = CausalTransformer(n_layer, n_embd, n_head, max_context, dropout)
         self.head = (nn.Linear(n_embd, action_spec.size) if action_spec.discrete
                      else GaussianMeanHead(n_embd, action_spec.size))
