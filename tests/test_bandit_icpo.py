@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import lightning as L
 import numpy as np
@@ -357,8 +358,6 @@ def test_icpo_beats_uniform_random_duels_on_held_out_problems(tmp_path):
 def test_a_stateless_policy_builds_without_warnings_and_its_query_token_is_a_learned_vector():
     """A bandit has no state: the query embedding maps 0 features to its bias. Building it must not warn
     (nn.Linear's init of the empty weight does, which every bandit run printed), and the bias is trained."""
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         module = ICPOModule(state_dim=0, action_dim=4, discrete=True, max_context=8, n_layer=1, n_embd=16, n_head=2)
