@@ -265,7 +265,7 @@ def test_http_step_prompt_names_the_cell_goal_and_actions(endpoint):
 
 def test_http_malformed_reply_is_a_clear_error(endpoint):
     server, url = endpoint
-    with pytest.raises(AnnotatorError, match="must be 1, 2, skip or equal .* got 'I think the first one"):
+    with pytest.raises(AnnotatorError, match=f"{url}/bad: the answer must be 1, 2, skip or equal .* got 'I think"):
         HTTPAnnotator(url + "/bad", retries=3, backoff=0).label_trajectories(darkroom_pair(), None)
     assert len(server.prompts) == 1  # asking again would not help
 
@@ -273,7 +273,7 @@ def test_http_malformed_reply_is_a_clear_error(endpoint):
 def test_http_timeout_is_retried_then_an_error(endpoint):
     server, url = endpoint
     start = time.monotonic()
-    with pytest.raises(AnnotatorError, match="no answer from .* after 2 attempt\\(s\\) \\(timeout 0.2 s\\)"):
+    with pytest.raises(AnnotatorError, match=f"{url}/slow: no complete reply within the 0.2 s deadline .*2 tries"):
         HTTPAnnotator(url + "/slow", timeout=0.2, retries=1, backoff=0.05).label_trajectories(darkroom_pair(), None)
     assert len(server.prompts) == 2 and time.monotonic() - start < 3
 
@@ -288,8 +288,15 @@ def test_http_server_error_is_retried_client_error_is_not(endpoint):
 def test_http_template_fields_are_checked():
     with pytest.raises(HyperparameterError, match="unknown field\\(s\\) \\['reward'\\]"):
         HTTPAnnotator("http://127.0.0.1:1", template="{trajectory_1} {reward}")
-    with pytest.raises(HyperparameterError, match="url must start with http"):
-        HTTPAnnotator("ftp://x")
+    for url in ("ftp://x", "http://", "http://host:port/", "http://host:0/", 3):
+        with pytest.raises(HyperparameterError, match="url must be http:// or https:// with a host"):
+            HTTPAnnotator(url)
+    with pytest.raises(HyperparameterError, match="follow_redirects must be true or false, got 1"):
+        HTTPAnnotator("http://127.0.0.1:1", follow_redirects=1)
+    with pytest.raises(HyperparameterError, match="max_reply_bytes must be >= 1"):
+        HTTPAnnotator("http://127.0.0.1:1", max_reply_bytes=0)
+    args = HTTPAnnotator("http://[::1]:8/x", follow_redirects=True, max_reply_bytes=10).init_args()
+    assert (args["follow_redirects"], args["max_reply_bytes"]) == (True, 10)
 
 
 # ---- TerminalAnnotator ---------------------------------------------------------------------------------------
@@ -324,6 +331,68 @@ def test_terminal_reads_single_keys_from_a_pseudo_terminal():
         y = annotator.label_trajectories(TrajectoryQueries(*[np.concatenate([f] * 2) for f in pair[:6]]), None)
     os.close(master)
     assert y.tolist() == [SECOND, EQUAL]
+
+
+def test_terminal_defaults_label_on_a_terminal():
+    """With no streams passed, stdin/stdout are used when both are terminals (here pseudo-terminals)."""
+    master_in, slave_in = os.openpty()
+    master_out, slave_out = os.openpty()
+    with os.fdopen(slave_in, "r") as tty_in, os.fdopen(slave_out, "w") as tty_out:
+        os.write(master_in, b"1")
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr("sys.stdin", tty_in)
+            mp.setattr("sys.stdout", tty_out)
+            y = TerminalAnnotator().label_trajectories(darkroom_pair(), None)
+        assert y.tolist() == [FIRST]
+        assert b"[query 1]" in os.read(master_out, 65536)
+    os.close(master_in)
+    os.close(master_out)
+
+
+def closed_stream() -> StringIO:
+    stream = StringIO()
+    stream.close()
+    return stream
+
+
+@pytest.mark.parametrize(("stdin", "stdout", "message"), [
+    (StringIO("1\n"), "tty", "stdin is not a TTY"),
+    (None, "tty", "stdin is missing \\(None\\)"),
+    ("closed", "tty", "stdin is closed"),
+    ("tty", StringIO(), "stdout is not a TTY"),
+    ("tty", None, "stdout is missing \\(None\\)"),
+    ("tty", "closed", "stdout is closed"),
+])
+def test_terminal_without_an_interactive_terminal_refuses_before_drawing(monkeypatch, stdin, stdout, message):
+    master, slave = os.openpty()
+    with os.fdopen(slave, "w") as tty_stream:  # only asked isatty()
+        pick = {"tty": tty_stream, "closed": closed_stream()}
+        monkeypatch.setattr("sys.stdin", pick.get(stdin, stdin) if isinstance(stdin, str) else stdin)
+        monkeypatch.setattr("sys.stdout", pick.get(stdout, stdout) if isinstance(stdout, str) else stdout)
+        with pytest.raises(AnnotatorError, match=f"needs an interactive terminal: {message}; use HTTPAnnotator"):
+            TerminalAnnotator().label_trajectories(darkroom_pair(), None)
+        monkeypatch.undo()
+    os.close(master)
+    if isinstance(stdout, StringIO):
+        assert stdout.getvalue() == ""  # nothing drawn for nobody
+
+
+def test_terminal_streams_passed_in_need_not_be_terminals_but_must_be_open():
+    assert TerminalAnnotator(input=StringIO("2\n"), output=StringIO()).label_trajectories(darkroom_pair(), None) \
+        .tolist() == [SECOND]
+    with pytest.raises(AnnotatorError, match="TerminalAnnotator: the input stream passed in is closed"):
+        TerminalAnnotator(input=closed_stream(), output=StringIO()).label_trajectories(darkroom_pair(), None)
+    with pytest.raises(AnnotatorError, match="TerminalAnnotator: the output stream passed in is closed"):
+        TerminalAnnotator(input=StringIO("1\n"), output=closed_stream()).label_trajectories(darkroom_pair(), None)
+
+
+def test_terminal_failing_mid_query_is_an_annotator_error():
+    class HungUp(StringIO):
+        def readline(self, *args):
+            raise OSError(5, "Input/output error")
+
+    with pytest.raises(AnnotatorError, match="terminal failed while asking query 1: OSError: .*Input/output error"):
+        TerminalAnnotator(input=HungUp(), output=StringIO()).label_trajectories(darkroom_pair(), None)
 
 
 # ---- settings take an annotator --------------------------------------------------------------------------------
