@@ -13,6 +13,15 @@ A checkpoint is untrusted input, so reading one never runs code from it:
 * ``on_save_checkpoint`` stores ``icprl_sha256``: SHA-256 over the class path, the hyperparameters (as
   sorted JSON) and every ``state_dict`` tensor (sorted by name: name, dtype, shape, bytes). Reading
   recomputes it, so a flipped bit in a weight is an error, not a silently different policy.
+* It also stores ``icprl_seal``: one SHA-256 per top-level entry of the whole checkpoint (optimizer and
+  scheduler states, loops, callbacks and their RNG states, ...), computed as the last step of Lightning's
+  ``dump_checkpoint``, so what a resume restores is covered too, and a damaged part is named.
+* Every floating tensor of the weights and the optimizer state must be finite: a NaN moment would resume
+  into an all-NaN model.
+
+``checkpoint_for_lightning`` is the one door through which the CLI hands Lightning a ``ckpt_path``: it
+checks the parsed path (however it was spelled), verifies the file as above and gives Lightning a private
+copy of exactly the verified contents, so Lightning never unpickles a file this module has not read.
 
 A file saved before the checksum existed is refused, with the way out in the message: for a file you
 trust, ``python -m icprl_lightning.checkpoints stamp PATH`` adds the checksum (it loads the file as safely
@@ -22,21 +31,24 @@ as any other read; the stamp only vouches that the file has not changed since).
 from __future__ import annotations
 
 import argparse
+import atexit
 import hashlib
 import importlib
 import inspect
 import json
 import os
 import re
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
-import yaml
 
 CLASS_KEY = "icprl_class_path"
 CHECKSUM_KEY = "icprl_sha256"
+SEAL_KEY = "icprl_seal"
 METHODS = ("icprl_lightning.methods.dpt.DPTModule", "icprl_lightning.methods.dpt.DP2TModule",
            "icprl_lightning.methods.icpo.ICPOModule", "icprl_lightning.methods.reward_gen.RewardGenModule",
            "icprl_lightning.methods.dit.DITModule", "icprl_lightning.methods.icrg.ICRGModule")
@@ -77,11 +89,81 @@ def checksum(class_name: str, hparams: dict[str, Any], state_dict: dict[str, Any
     return h.hexdigest()
 
 
+def _digest(value: Any, h: Any) -> None:
+    """Feed ``value`` to ``h`` in a canonical form: containers by type and (sorted) keys, tensors by dtype,
+    shape and bytes, scalars by type and repr. The same contents always give the same bytes."""
+    if isinstance(value, torch.Tensor):
+        t = value.detach().cpu()
+        if t.layout != torch.strided:
+            raise TypeError(f"a {t.layout} tensor")
+        h.update(f"T{t.dtype}{tuple(t.shape)}".encode())
+        h.update(t.contiguous().reshape(-1).view(torch.uint8).numpy().tobytes())
+    elif isinstance(value, dict):
+        h.update(f"D{len(value)}".encode())
+        for key in sorted(value, key=lambda k: (type(k).__name__, repr(k))):
+            _digest(key, h)
+            _digest(value[key], h)
+    elif isinstance(value, (list, tuple)):
+        h.update(f"{type(value).__name__[0]}{len(value)}".encode())
+        for item in value:
+            _digest(item, h)
+    elif value is None or isinstance(value, (bool, int, float, str, bytes)):
+        h.update(f"S{type(value).__name__}:{value!r};".encode())
+    else:  # never in a checkpoint read with weights_only; hashed so that a stray entry is still covered
+        h.update(f"O{type(value).__name__}:{value!r};".encode())
+
+
+def seal(checkpoint: dict[str, Any]) -> dict[str, str]:
+    """One SHA-256 per top-level entry of ``checkpoint`` (all but the seal itself)."""
+    digests = {}
+    for key, value in checkpoint.items():
+        if key == SEAL_KEY:
+            continue
+        h = hashlib.sha256()
+        _digest(value, h)
+        digests[str(key)] = h.hexdigest()
+    return digests
+
+
 def stamp(module: torch.nn.Module, checkpoint: dict[str, Any]) -> None:
-    """``on_save_checkpoint`` of every method: the class to rebuild and the checksum of what is saved."""
+    """``on_save_checkpoint`` of every method: the class to rebuild, the checksum of the module and the seal
+    of the whole checkpoint. Lightning calls the module's hook last in ``dump_checkpoint``, so the seal covers
+    every entry that is saved."""
     checkpoint[CLASS_KEY] = class_path(type(module))
     checkpoint[CHECKSUM_KEY] = checksum(checkpoint[CLASS_KEY], checkpoint.get("hyper_parameters", {}),
                                         checkpoint["state_dict"])
+    checkpoint[SEAL_KEY] = seal(checkpoint)
+
+
+def _check_seal(ckpt: dict[str, Any], path: str | Path) -> None:
+    """Every entry matches the digest stored when it was saved; the first one that does not is named."""
+    stored = ckpt[SEAL_KEY]
+    if not isinstance(stored, dict) or not all(isinstance(v, str) for v in stored.values()):
+        raise ValueError(f"{path} is damaged: its {SEAL_KEY} entry is not a table of digests")
+    try:
+        found = seal(ckpt)
+    except (TypeError, ValueError, RuntimeError) as e:
+        raise ValueError(f"{path} is damaged: its contents cannot be checksummed ({_first_line(e)})") from None
+    for key in sorted(set(stored) | set(found)):
+        if key not in found:
+            raise ValueError(f"{path} is damaged: its {key!r} entry is missing (it was saved with one)")
+        if key not in stored:
+            raise ValueError(f"{path} is damaged: it has a {key!r} entry that was not there when it was saved")
+        if stored[key] != found[key]:
+            raise ValueError(f"{path} is damaged: its {key!r} entry does not match the checksum stored when it "
+                             "was saved (a changed bit or an edited file); re-train or restore the file")
+
+
+def _non_finite(value: Any, where: str) -> str | None:
+    """The first place in ``value`` (nested containers) holding a NaN or an infinite float, or None."""
+    if isinstance(value, torch.Tensor):
+        return where if value.is_floating_point() and not bool(torch.isfinite(value).all()) else None
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, (list, tuple)) else ()
+    for key, item in items:
+        found = _non_finite(item, f"{where}.{key}" if where else str(key))
+        if found:
+            return found
+    return None
 
 
 def _unsafe_global(e: BaseException) -> str | None:
@@ -128,8 +210,12 @@ def read_checkpoint(path: str | Path, map_location: str | torch.device = "cpu",
     return verify(load_raw(path, map_location), path, expected)
 
 
-def verify(ckpt: dict[str, Any], path: str | Path, expected: type | None = None) -> dict[str, Any]:
-    """``ckpt`` (from ``load_raw``) if its class is allowed and its checksum matches, else a ValueError."""
+def verify(ckpt: dict[str, Any], path: str | Path, expected: type | None = None,
+           require_seal: bool = False) -> dict[str, Any]:
+    """``ckpt`` (from ``load_raw``) if its class is allowed and its checksum and seal match, else a ValueError.
+
+    ``require_seal`` (a resume) refuses a file without the seal: its optimizer, loop and RNG states would be
+    restored unchecked."""
     name = ckpt[CLASS_KEY]
     allowed = {class_path(expected)} if expected is not None else set(METHODS)
     if not isinstance(name, str) or name not in allowed:
@@ -158,6 +244,17 @@ def verify(ckpt: dict[str, Any], path: str | Path, expected: type | None = None)
     if ckpt[CHECKSUM_KEY] != expected_sum:
         raise ValueError(f"{path} is damaged: its weights or hyperparameters do not match the checksum stored "
                          "when it was saved (a changed bit or an edited file); re-train or restore the file")
+    if SEAL_KEY in ckpt:
+        _check_seal(ckpt, path)
+    elif require_seal:
+        raise ValueError(f"{path} has no {SEAL_KEY} (saved by an older icprl_lightning), so the optimizer, loop and "
+                         "RNG states a resume restores cannot be checked; start a new fit from its weights instead, or "
+                         f"if you trust the file add one with `python -m icprl_lightning.checkpoints stamp {path}`")
+    for part in ("state_dict", "optimizer_states", "lr_schedulers"):
+        where = _non_finite(ckpt.get(part, ()), part)
+        if where:
+            raise ValueError(f"{path} is unusable: {where} holds NaN or infinite values (the run that saved it "
+                             "diverged); resume from an earlier checkpoint")
     return ckpt
 
 
@@ -181,55 +278,69 @@ def load_module(path: str | Path, map_location: str | torch.device = "cpu"):
     return build_module(read_checkpoint(path, map_location), path, map_location)
 
 
-def check_cli_checkpoint(args: list[str]) -> str | None:
-    """Verify the ``--ckpt_path`` of ``icprl fit/validate/test/predict`` args (after the subcommand).
+_VERIFIED_DIR: list[str] = []  # the private directory of verified copies, made once per process
 
-    The path is the last ``--ckpt_path`` given, on the command line or as a top-level ``ckpt_path`` of a
-    ``--config`` file. Lightning's special values (``best``, ``last``, ...) are left to the Trainer.
-    ``--weights_only false`` is refused: it would let Lightning unpickle arbitrary objects. Returns the
-    verified path (None if there is none to check).
+
+def _private_copy(ckpt: dict[str, Any], name: str) -> str:
+    """``ckpt`` saved into a private temporary directory (mode 0700, removed at exit); its path."""
+    if not _VERIFIED_DIR:
+        _VERIFIED_DIR.append(tempfile.mkdtemp(prefix="icprl-verified-"))
+        atexit.register(shutil.rmtree, _VERIFIED_DIR[0], ignore_errors=True)
+    out = os.path.join(_VERIFIED_DIR[0], f"{len(os.listdir(_VERIFIED_DIR[0]))}-{name}")
+    torch.save(ckpt, out)
+    return out
+
+
+def checkpoint_for_lightning(ckpt_path: Any, subcommand: str) -> str:
+    """The ``ckpt_path`` that ``icprl fit/validate/test/predict`` parsed, checked and verified; the path of a
+    private copy of its verified contents, which is what Lightning then loads.
+
+    Called on the parsed config, so it sees the path however it was given (``--ckpt_path``, an abbreviation,
+    ``-c``/``--config`` files at either level, inline YAML). Only a local file is accepted: URLs and other
+    remote paths (which Lightning would fetch and unpickle) and Lightning's special values (``best``, ``last``,
+    ``hpc``, ``registry``: resolved by the Trainer, outside this check) are refused. ``fit`` resumes the whole
+    training state, so it needs the file's seal (``verify(require_seal=True)``); the other subcommands restore
+    the weights only, and get a copy holding just the verified module. The module is built once, so a file
+    that does not rebuild fails here, in one line.
     """
-    ckpt_path, weights_only = None, None
-    it = iter(args)
-    for arg in it:
-        key, eq, value = arg.partition("=")
-        if key not in ("--ckpt_path", "--config", "--weights_only"):
-            continue
-        value = value if eq else next(it, "")
-        if key == "--ckpt_path":
-            ckpt_path = value
-        elif key == "--weights_only":
-            weights_only = value
-        elif Path(value).is_file():
-            config = yaml.safe_load(Path(value).read_text())
-            if isinstance(config, dict) and config.get("ckpt_path") is not None:
-                ckpt_path = str(config["ckpt_path"])
-    if weights_only is not None and weights_only.lower() == "false":
-        raise ValueError("--weights_only false is refused: icprl checkpoints hold only tensors and plain values")
-    if not ckpt_path or ckpt_path.lower() in ("null", "none"):
-        return None
-    if (ckpt_path in LIGHTNING_SPECIAL_PATHS or ckpt_path.startswith("registry")) and not os.path.exists(ckpt_path):
-        return None
-    load_module(ckpt_path)  # built once here too: a file that does not rebuild fails here, in one line
-    return ckpt_path
+    if not isinstance(ckpt_path, (str, os.PathLike)):
+        raise ValueError(f"ckpt_path must be a path to a .ckpt file, got {ckpt_path!r}")
+    text = os.fspath(ckpt_path)
+    if re.match(r"^[A-Za-z][A-Za-z0-9+.-]*://", text) or text.startswith(("registry", "hf:")):
+        raise ValueError(f"ckpt_path {text!r} is refused: only a local checkpoint file is loaded (download it "
+                         "yourself, then pass its path)")
+    if text in LIGHTNING_SPECIAL_PATHS and not os.path.exists(text):
+        raise ValueError(f"ckpt_path {text!r} is refused: pass the checkpoint file's path (each fit has its own "
+                         "run directory, which prints `last checkpoint: PATH` when it ends)")
+    path = Path(text).expanduser().resolve()
+    ckpt = verify(load_raw(path), path, require_seal=subcommand == "fit")
+    build_module(ckpt, path)
+    if subcommand != "fit":  # the weights and what rebuilds them; nothing unverified reaches Lightning
+        import lightning
+
+        ckpt = {k: ckpt[k] for k in (CLASS_KEY, CHECKSUM_KEY, "state_dict", "hyper_parameters")}
+        ckpt["pytorch-lightning_version"] = lightning.__version__
+    return _private_copy(ckpt, path.name)
 
 
 def stamp_file(path: str | Path) -> str:
-    """Add the checksum to a trusted checkpoint saved before it existed (atomic rewrite); returns it.
+    """Add the checksum and the seal to a trusted checkpoint saved before they existed (atomic rewrite in the
+    same directory); returns the checksum.
 
-    The file is read as safely as any other, must name an allowed class and must rebuild; a checksum it
-    already has is checked, never replaced.
+    The file is read as safely as any other, must name an allowed class and must rebuild; a checksum or seal
+    it already has is checked, never replaced.
     """
     path = Path(path)
     ckpt = load_raw(path)
-    stamped = CHECKSUM_KEY in ckpt
-    if not stamped:
+    changed = CHECKSUM_KEY not in ckpt or SEAL_KEY not in ckpt
+    if CHECKSUM_KEY not in ckpt:
         try:
             ckpt[CHECKSUM_KEY] = checksum(str(ckpt[CLASS_KEY]), ckpt.get("hyper_parameters"), ckpt.get("state_dict"))
         except (TypeError, ValueError, RuntimeError, AttributeError) as e:
             raise ValueError(f"{path} is damaged: its contents cannot be checksummed ({_first_line(e)})") from None
-    build_module(verify(ckpt, path), path)
-    if not stamped:
+    build_module(verify(ckpt, path), path)  # the checksum (and a seal it has) checked before anything is added
+    if changed:
+        ckpt[SEAL_KEY] = seal(ckpt)
         tmp = path.with_name(f".{path.name}.stamp-{os.getpid()}")
         try:
             torch.save(ckpt, tmp)
@@ -244,7 +355,10 @@ def main(args: list[str] | None = None) -> None:
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("stamp", help="add the checksum to trusted checkpoints saved before it existed").add_argument(
         "paths", nargs="+")
-    sub.add_parser("verify", help="check checkpoints (exit 1 if any fails)").add_argument("paths", nargs="+")
+    check = sub.add_parser("verify", help="check checkpoints (exit 1 if any fails)")
+    check.add_argument("paths", nargs="+")
+    check.add_argument("--resumable", action="store_true",
+                       help="also require the seal over the training state that a resume restores")
     parsed = parser.parse_args(args)
     failed = False
     for path in parsed.paths:
@@ -252,7 +366,7 @@ def main(args: list[str] | None = None) -> None:
             if parsed.command == "stamp":
                 print(f"{path}: {CHECKSUM_KEY} {stamp_file(path)}")
             else:
-                load_module(path)
+                build_module(verify(load_raw(path), path, require_seal=parsed.resumable), path)
                 print(f"{path}: ok")
         except (ValueError, FileNotFoundError) as e:
             print(f"error: {e}", file=sys.stderr)

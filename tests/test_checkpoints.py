@@ -22,9 +22,10 @@ from icprl_lightning.checkpoints import (
     CHECKSUM_KEY,
     CLASS_KEY,
     METHODS,
-    check_cli_checkpoint,
+    SEAL_KEY,
     checksum,
     method_classes,
+    seal,
 )
 from icprl_lightning.checkpoints import main as checkpoints_main
 from icprl_lightning.cli import main
@@ -114,6 +115,7 @@ def _restamped(edit):
     def apply(ckpt: dict) -> None:
         edit(ckpt)
         ckpt[CHECKSUM_KEY] = checksum(ckpt[CLASS_KEY], ckpt["hyper_parameters"], ckpt["state_dict"])
+        ckpt[SEAL_KEY] = seal(ckpt)
     return apply
 
 
@@ -194,7 +196,7 @@ def _bad_files(good: Path, d: Path) -> dict[str, tuple[Path, type[Exception], st
         "relabeled_class": (_edited(good, d / "relabeled.ckpt", _restamped(lambda c: c.update(
             {CLASS_KEY: "icprl_lightning.methods.reward_gen.RewardGenModule"}))), ValueError,
             "does not fit RewardGenModule"),
-        "no_checksum": (_edited(good, d / "old.ckpt", lambda c: c.pop(CHECKSUM_KEY)), ValueError,
+        "no_checksum": (_edited(good, d / "old.ckpt", lambda c: (c.pop(CHECKSUM_KEY), c.pop(SEAL_KEY))), ValueError,
                         "has no icprl_sha256 checksum .*`python -m icprl_lightning.checkpoints stamp "),
     }
 
@@ -321,21 +323,8 @@ def test_cli_refuses_weights_only_false(saved, capsys):
     with pytest.raises(SystemExit):
         main(["validate", "--config", str(REPO / "configs/icpo_darkroom.yaml"), "--ckpt_path", str(saved["icpo"]),
               "--weights_only", "false"])
-    assert capsys.readouterr().err == ("icprl validate: error: --weights_only false is refused: icprl checkpoints "
+    assert capsys.readouterr().err == ("icprl validate: error: weights_only false is refused: icprl checkpoints "
                                        "hold only tensors and plain values\n")
-
-
-def test_cli_pre_check_passes_a_good_checkpoint_and_leaves_special_values_to_lightning(saved, tmp_path):
-    config = tmp_path / "ckpt.yaml"
-    config.write_text(f"ckpt_path: {saved['icpo']}\n")
-    assert check_cli_checkpoint(["--config", str(REPO / "configs/icpo_darkroom.yaml"), "--ckpt_path",
-                                 str(saved["icpo"])]) == str(saved["icpo"])
-    assert check_cli_checkpoint([f"--ckpt_path={saved['icpo']}"]) == str(saved["icpo"])
-    assert check_cli_checkpoint(["--config", str(config)]) == str(saved["icpo"])  # from a config file
-    assert check_cli_checkpoint(["--ckpt_path", "last"]) is None and check_cli_checkpoint([]) is None
-    config.write_text(f"ckpt_path: {tmp_path / 'gone.ckpt'}\n")
-    with pytest.raises(FileNotFoundError, match="No checkpoint at"):
-        check_cli_checkpoint(["--config", str(config)])
 
 
 @pytest.mark.slow

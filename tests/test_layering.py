@@ -17,7 +17,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "icprl_lightning"
 
 # lowest first; a module's layer is the first entry its dotted name starts with
 LAYERS = [
-    ("contexts", "preferences", "io", "metrics", "validation"),   # ground: shared vocabulary, argument checks
+    ("contexts", "preferences", "io", "metrics", "validation",   # ground: shared vocabulary, argument checks,
+     "progress"),                                                 # progress lines
     ("families",),                                  # task families, their envs and oracles
     ("annotators",),                                # who labels a pair (sees the oracle's utilities)
     ("data",),                                      # settings (generators), store, DataModules
@@ -28,7 +29,7 @@ LAYERS = [
     ("evaluation",),                                # rollouts and duels through the Agent
     ("callbacks",),
     ("baselines",),                                 # SB3 from scratch
-    ("cli", "reproduce", "__init__"),               # the commands (reproduce runs `icprl fit` and `evaluate`)
+    ("cli", "trainer_cli", "reproduce", "__init__"),  # the commands (reproduce runs `icprl fit` and `evaluate`)
 ]
 REWARD_FREE = ("models", "methods", "deploy", "online")
 FORBIDDEN_FOR_REWARD_FREE = ("families", "annotators", "data")
