@@ -41,7 +41,9 @@ an active-query rule):
 * ``UniformPair`` (the passive reference): two distinct actions uniform at random (discrete), or two
   uniform points of the action box (continuous); the model's outputs are not used.
 
-``PAIR_RULES`` names them for scripts (``scripts/online_bandit.py --rule``, ``scripts/online_darkroom.py``).
+``PAIR_RULES`` names them: ``pair_rule`` also takes a name (``"top_two"``), resolved when the agent is built
+(and whenever ``pair_rule`` is set), as is whether the rule fits the model's actions, so an unknown name or a
+discrete-only rule on continuous actions is one ``ValueError`` before the first ``propose``.
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ from typing import Protocol
 import torch
 from torch import Tensor
 
-from icprl_lightning.contexts import StepPreferenceContext, as_tensor
+from icprl_lightning.contexts import ActionSpec, StepPreferenceContext, as_tensor
 from icprl_lightning.deploy import Agent, load_agent
 from icprl_lightning.models.policy import InContextPolicy
 
@@ -70,6 +72,8 @@ def _column(name: str, x) -> Tensor:
 
 
 class PairRule(Protocol):
+    """``discrete_only`` (optional attribute, default False): the rule needs discrete actions."""
+
     def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
         """``outputs`` [B, A]: T_θ's logits (discrete) or means (continuous) at the current states."""
         ...
@@ -108,6 +112,8 @@ class ActionAndUniform:
 class TopTwo:
     """The two actions of highest probability under T_θ, the most likely first (discrete actions only)."""
 
+    discrete_only = True
+
     def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
         top = _discrete_outputs("TopTwo", agent, outputs).topk(2, dim=-1).indices
         return top[:, 0], top[:, 1]
@@ -115,6 +121,8 @@ class TopTwo:
 
 class SampledPair:
     """Two distinct actions sampled from T_θ (discrete only): the first ~ T_θ, the second ~ T_θ without the first."""
+
+    discrete_only = True
 
     def __call__(self, agent: OnlineAgent, outputs: Tensor) -> Pair:
         probs = torch.softmax(_discrete_outputs("SampledPair", agent, outputs).float(), dim=-1)
@@ -140,6 +148,30 @@ PAIR_RULES: dict[str, type] = {"action_uniform": ActionAndUniform, "top_two": To
                                "uniform": UniformPair}
 
 
+def resolve_pair_rule(rule: PairRule | str | None, action_spec: ActionSpec) -> PairRule:
+    """``rule`` as a callable fit for ``action_spec``: a name of ``PAIR_RULES``, a rule object, or None (the default
+    ``ActionAndUniform``); an unknown name, a class instead of an instance, anything not callable or a
+    discrete-only rule on continuous actions is a ``ValueError`` naming the valid choices."""
+    names = ", ".join(sorted(PAIR_RULES))
+    if rule is None:
+        return ActionAndUniform()
+    if isinstance(rule, str):
+        if rule not in PAIR_RULES:
+            raise ValueError(f"pair_rule {rule!r} is not a pair rule; the names are {names} (or pass any callable "
+                             "rule(agent, outputs) -> (first, second))")
+        rule = PAIR_RULES[rule]()
+    elif isinstance(rule, type):
+        raise ValueError(f"pair_rule {rule.__name__} is a class; pass an instance ({rule.__name__}()) or a name: "
+                         f"{names}")
+    elif not callable(rule):
+        raise ValueError(f"pair_rule must be a name ({names}) or a callable rule(agent, outputs) -> (first, second), "
+                         f"got {type(rule).__name__}")
+    if getattr(rule, "discrete_only", False) and not action_spec.discrete:
+        raise ValueError(f"pair_rule {type(rule).__name__} needs discrete actions; this model's actions are "
+                         "continuous (use action_uniform or uniform)")
+    return rule
+
+
 class OnlineAgent(Agent):
     """An ``Agent`` whose context grows by one answered comparison per ``observe`` (module docstring).
 
@@ -149,15 +181,24 @@ class OnlineAgent(Agent):
     """
 
     def __init__(self, policy: InContextPolicy, greedy: bool = True, use_cache: bool = True, seed: int | None = None,
-                 pair_rule: PairRule | None = None) -> None:
+                 pair_rule: PairRule | str | None = None) -> None:
         if policy.context_kind != "step_preference":
             raise ValueError(f"online deployment appends step-preference comparisons; this model takes "
                              f"{policy.context_kind!r} contexts")
         super().__init__(policy, greedy=greedy, use_cache=use_cache, seed=seed)
-        self.pair_rule: PairRule = ActionAndUniform() if pair_rule is None else pair_rule
+        self.pair_rule = pair_rule
+
+    @property
+    def pair_rule(self) -> PairRule:
+        """The rule ``propose`` asks by; set it to a name of ``PAIR_RULES`` or a rule (checked as it is set)."""
+        return self._pair_rule
+
+    @pair_rule.setter
+    def pair_rule(self, rule: PairRule | str | None) -> None:
+        self._pair_rule = resolve_pair_rule(rule, self.policy.action_spec)
 
     @classmethod
-    def from_agent(cls, agent: Agent, pair_rule: PairRule | None = None) -> OnlineAgent:
+    def from_agent(cls, agent: Agent, pair_rule: PairRule | str | None = None) -> OnlineAgent:
         """The same policy, greedy/cache options and random stream as ``agent`` (e.g. from ``load_agent``)."""
         online = cls(agent.policy, greedy=agent.greedy, use_cache=agent.use_cache, pair_rule=pair_rule)
         if agent.generator is not None:
@@ -166,7 +207,7 @@ class OnlineAgent(Agent):
 
     @classmethod
     def load(cls, checkpoint: str | Path, greedy: bool | None = None, seed: int | None = None,
-             pair_rule: PairRule | None = None, map_location: str | torch.device = "cpu") -> OnlineAgent:
+             pair_rule: PairRule | str | None = None, map_location: str | torch.device = "cpu") -> OnlineAgent:
         """Read a checkpoint as ``load_agent`` does (untrusted, allow-listed, checksummed), then go online."""
         return cls.from_agent(load_agent(checkpoint, greedy=greedy, seed=seed, map_location=map_location),
                               pair_rule=pair_rule)

@@ -190,10 +190,8 @@ def test_top_two_rule_and_continuous_refusal():
     first, second = agent.propose(obs)
     top = agent.outputs(obs).topk(2).indices
     assert torch.equal(first, top[:, 0]) and torch.equal(second, top[:, 1])
-    continuous = OnlineAgent(_policy(2, ActionSpec(discrete=False, size=2)), pair_rule=TopTwo())
-    continuous.reset(3)
-    with pytest.raises(ValueError, match="TopTwo needs discrete actions"):
-        continuous.propose(obs)
+    with pytest.raises(ValueError, match="TopTwo needs discrete actions"):  # when built, not at the first propose
+        OnlineAgent(_policy(2, ActionSpec(discrete=False, size=2)), pair_rule=TopTwo())
 
 
 @pytest.mark.parametrize("rule", [SampledPair, UniformPair])
@@ -231,9 +229,11 @@ def test_continuous_rules():
     agent.reset(5)
     first, second = agent.propose(torch.randn(5, 2))
     assert first.shape == second.shape == (5, 2) and float(first.abs().max()) <= 1
-    agent.pair_rule = SampledPair()
     with pytest.raises(ValueError, match="SampledPair needs discrete actions"):
-        agent.propose(torch.randn(5, 2))
+        agent.pair_rule = SampledPair()
+    assert isinstance(agent.pair_rule, UniformPair)  # the refused rule left the agent as it was
+    with pytest.raises(ValueError, match="SampledPair needs discrete actions"):  # the rule called directly
+        SampledPair()(agent, torch.randn(5, 2))
     assert set(PAIR_RULES) == {"action_uniform", "top_two", "sampled", "uniform"}
 
 
@@ -262,3 +262,28 @@ def test_loads_a_bandit_checkpoint(tmp_path):
         online.reset(4)
         proposals.append(torch.stack(online.propose(torch.zeros(4, 0))))
     assert torch.equal(*proposals)
+
+
+@pytest.mark.parametrize("name, rule", sorted(PAIR_RULES.items()))
+def test_pair_rules_resolve_by_name_when_the_agent_is_built(tmp_path, name, rule):
+    agent = OnlineAgent(_policy(2, ActionSpec(discrete=True, size=4)), pair_rule=name, seed=0)
+    assert type(agent.pair_rule) is rule
+    agent.reset(3)
+    first, second = agent.propose(torch.randn(3, 2))
+    assert first.shape == second.shape == (3,)
+
+
+@pytest.mark.parametrize("rule, message", [("top-two", "'top-two' is not a pair rule; the names are action_uniform, "
+                                                       "sampled, top_two, uniform"),
+                                           (TopTwo, r"is a class; pass an instance \(TopTwo\(\)\)"),
+                                           (3, "must be a name"),
+                                           ("sampled", "SampledPair needs discrete actions")])
+def test_an_unknown_or_unfit_pair_rule_fails_when_the_agent_is_built(tmp_path, rule, message):
+    torch.manual_seed(0)
+    module = ICPOModule(state_dim=2, action_dim=3, discrete=rule != "sampled", max_context=5, n_layer=1, n_embd=16,
+                        n_head=2)
+    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
+    module.on_save_checkpoint(checkpoint)
+    torch.save(checkpoint, tmp_path / "m.ckpt")
+    with pytest.raises(ValueError, match=message):
+        OnlineAgent.load(tmp_path / "m.ckpt", pair_rule=rule)

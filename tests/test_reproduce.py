@@ -1,4 +1,4 @@
-"""``icprl reproduce``: trains every run per training seed, evaluates with the diagnostics, resumes (issue 15)."""
+"""``icprl reproduce``: trains every run per training seed, evaluates with the diagnostics, resumes."""
 
 from __future__ import annotations
 
@@ -85,17 +85,53 @@ def test_a_record_is_reused_only_while_its_command_and_configs_are_unchanged(tmp
     command = fit_command(run, 0, work / "tiny" / "runs")
     (work / "tiny").mkdir(parents=True)
     record = work / "tiny" / "ICPO-seed0.json"
+    checkpoint = tmp_path / "last.ckpt"
+    checkpoint.write_bytes(b"")
     record.write_text(json.dumps({"command": " ".join(command), "inputs_sha256": fit_inputs(run, command),
-                                  "checkpoint": "x/last.ckpt", "seconds": 1.0}))
+                                  "checkpoint": str(checkpoint), "seconds": 1.0}))
     reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
     assert "icprl fit" not in capsys.readouterr().out  # recorded and unchanged: nothing to train
+    checkpoint.unlink()  # unchanged, but its checkpoint is gone: trained again, not reused
+    reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
+    out = capsys.readouterr().out
+    assert f"the checkpoint {checkpoint} recorded in {record} is gone; training it again" in out and "icprl fit" in out
+    checkpoint.write_bytes(b"")
     config.write_text("model:\n  init_args:\n    beta: 0.1\n")  # the config changed since the fit
     reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
     out = capsys.readouterr().out
     assert "changed since" in out and "icprl fit" in out
-    record.write_text(json.dumps({"command": " ".join(command), "checkpoint": "x/last.ckpt"}))  # no digest
+    record.write_text(json.dumps({"command": " ".join(command), "checkpoint": str(checkpoint)}))  # no digest
     reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
     assert "icprl fit" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("text, problem", [("{\"checkpoint\": \"x", "is damaged"),
+                                           ("[1, 2]", "is not an icprl reproduce record (a JSON list"),
+                                           ("{\"checkpoint\": 3}", "its 'checkpoint' is 3, not a string"),
+                                           ("{\"inputs\": \"abc\"}", "its 'checkpoint' is None"),
+                                           ("{\"checkpoint\": \"c\", \"inputs_sha256\": [1]}", "'inputs_sha256'")])
+def test_a_damaged_or_foreign_record_is_one_error_naming_it_before_any_fit(tmp_path, monkeypatch, capsys, text,
+                                                                           problem):
+    """Every record is read before the first fit: the good run's fit never starts, the bad record is named."""
+    import icprl_lightning.reproduce.runner as rep
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("a fit started before the records were checked")
+
+    monkeypatch.setattr(rep, "_run_fit", no_fit)
+    monkeypatch.setitem(TABLES, "pair", Table("pair", "pair", (Run("A", ("configs/icpo_darkroom.yaml",)),
+                                                               Run("B", ("configs/icpo_darkroom.yaml",)))))
+    monkeypatch.chdir(REPO)
+    work = tmp_path / "work"
+    (work / "pair").mkdir(parents=True)
+    bad = work / "pair" / "B-seed0.json"
+    bad.write_text(text)
+    with pytest.raises(SystemExit) as exit_:
+        main(["pair", "--seeds", "0", "--jobs", "1", "--work", str(work), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1, err  # one line, no traceback
+    assert err.startswith(f"icprl reproduce: error: fit record {bad} ") and problem in err
+    assert "--refit" in err
 
 
 @pytest.mark.parametrize("table_name, metric, reference", [("bandit_teacher_noise", "weak_regret", "dts"),
@@ -149,10 +185,13 @@ def test_the_tprl_table_passes_each_seeds_reward_models_to_icrg(tmp_path, capsys
     table = TABLES["darkroom_tprl"]
     work = tmp_path / "work"
     (work / table.name).mkdir(parents=True)
+    ckpt = tmp_path / "ckpt"  # the recorded checkpoints exist: a record whose file is gone is trained again
     for run in stages(table.runs)[0]:
         command = fit_command(run, 0, work / table.name / "runs")
+        (ckpt / f"{slug(run.name)}-seed0").mkdir(parents=True)
+        (ckpt / f"{slug(run.name)}-seed0" / "best.ckpt").write_bytes(b"")
         record = {"command": " ".join(command), "inputs_sha256": fit_inputs(run, command),
-                  "checkpoint": f"/ckpt/{slug(run.name)}-seed0/best.ckpt"}
+                  "checkpoint": f"{ckpt}/{slug(run.name)}-seed0/best.ckpt"}
         (work / table.name / f"{slug(run.name)}-seed0.json").write_text(json.dumps(record))
     reproduce(table, [0], jobs=1, work=work, out_dir=tmp_path / "out", dry_run=True)
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("icprl fit")]
@@ -162,15 +201,15 @@ def test_the_tprl_table_passes_each_seeds_reward_models_to_icrg(tmp_path, capsys
     for run in icrg:  # each ICRG names the same seed's checkpoint of the RewardGen run it needs
         line = next(line for line in lines if f"--trainer.logger.init_args.name {slug(run.name)}-seed0 " in line)
         (stage1,) = dict(run.needs)["--model.init_args.reward_gen_checkpoint"]
-        assert f"--model.init_args.reward_gen_checkpoint /ckpt/{slug(stage1)}-seed0/best.ckpt" in line
-    assert sum("/ckpt/RewardGen-seed0/best.ckpt" in line for line in lines) >= 2
+        assert f"--model.init_args.reward_gen_checkpoint {ckpt}/{slug(stage1)}-seed0/best.ckpt" in line
+    assert sum(f"{ckpt}/RewardGen-seed0/best.ckpt" in line for line in lines) >= 2
     crossfit = [run for run in icrg if len(run.needs) == 2]
     assert sum("cross_fit_checkpoints" in line for line in lines) == len(crossfit) >= 2
     for run in crossfit:  # the fold models in fold order, of the same seed
         line = next(line for line in lines if f"--trainer.logger.init_args.name {slug(run.name)}-seed0 " in line)
         folds = dict(run.needs)["--model.init_args.cross_fit_checkpoints"]
-        assert "[" + ",".join(f"/ckpt/{slug(f)}-seed0/best.ckpt" for f in folds) + "]" in line
-    unbounded = "[/ckpt/RewardGen_fold0-seed0/best.ckpt,/ckpt/RewardGen_fold1-seed0/best.ckpt]"
+        assert "[" + ",".join(f"{ckpt}/{slug(f)}-seed0/best.ckpt" for f in folds) + "]" in line
+    unbounded = f"[{ckpt}/RewardGen_fold0-seed0/best.ckpt,{ckpt}/RewardGen_fold1-seed0/best.ckpt]"
     assert any(unbounded in line for line in lines)
 
 
@@ -203,6 +242,26 @@ def test_a_later_stage_starts_as_soon_as_its_own_needs_are_done(tmp_path, monkey
     assert sorted(summary["fits"]) == ["A-seed0", "B-seed0", "C-seed0"]
     assert events.index(("start", "C-seed0")) < events.index(("end", "A-seed0"))
     assert events.index(("end", "B-seed0")) < events.index(("start", "C-seed0"))
+
+
+@pytest.mark.parametrize("which, printed", [
+    ("last", "last checkpoint (epoch 0, step 2): {path}"), ("last", "last checkpoint: {path}"),
+    ("best", "best checkpoint (val/loss = 0.25, epoch 3): {path}")])
+def test_a_fit_record_takes_the_checkpoint_the_fit_printed(tmp_path, monkeypatch, which, printed):
+    import subprocess
+
+    import icprl_lightning.reproduce.runner as rep
+
+    path = tmp_path / "runs" / "a b" / "checkpoints" / f"{which}.ckpt"
+
+    def fake_fit(args, stdout, **kwargs):
+        stdout.write(f"Epoch 0: 100%\nbest checkpoint (val/loss = 9.0): /elsewhere.ckpt\n{printed.format(path=path)}\n"
+                     if which == "last" else f"last checkpoint: /elsewhere.ckpt\n{printed.format(path=path)}\n")
+        return subprocess.CompletedProcess(args, 0)
+
+    monkeypatch.setattr(rep.subprocess, "run", fake_fit)
+    result = rep._run_fit(["icprl", "fit"], "digest", tmp_path / "fit.log", tmp_path / "rec.json", 1, which)
+    assert result["checkpoint"] == str(path) and json.loads((tmp_path / "rec.json").read_text()) == result
 
 
 def test_final_epoch_means_average_the_last_epochs_training_metrics(tmp_path):

@@ -3,10 +3,9 @@
     icprl evaluate --title "DarkRoom I-PRL" --seeds 0 1 \
         --run DPT=configs/dpt_darkroom.yaml:runs/icprl/<id>/checkpoints/last.ckpt \
         --run ICPO=configs/icpo_darkroom.yaml:runs/icprl/<id>/checkpoints/last.ckpt \
-        --baseline "DQN from scratch=docs/results/dqn_from_scratch_darkroom.json" \
-        --out docs/results/darkroom_ipref
+        --baseline "DQN from scratch=docs/results/dqn_from_scratch_darkroom.json"
     icprl evaluate --title "Linear dueling bandits" --seeds 0 \
-        --run ICPO=configs/icpo_bandit.yaml:runs/icprl/<id>/checkpoints/last.ckpt --out docs/results/bandit
+        --run ICPO=configs/icpo_bandit.yaml:runs/icprl/<id>/checkpoints/last.ckpt --out results/bandit
 
 Each ``--run`` is NAME=CONFIG:CHECKPOINT[,CHECKPOINT...]: several checkpoints are *training seeds* of one
 method on the same data, and each row is then the mean ± sem over training seeds of each seed's
@@ -32,26 +31,48 @@ held-out task's context), ``shuffled_order`` (the same steps in a random order).
 apply to runs whose contexts have labels (preference methods), ``shuffled_order`` to contexts of steps
 (I-PRL, DPT's reward contexts, bandit duels); ``other_task`` to every run. Writes ``<out>.json`` (all
 numbers; the diagnostics under ``diagnostics``), ``<out>.md`` (the tables) and ``<out>.png``, and prints the
-JSON (without the bandits' per-h curves).
+tables (columns aligned) to stdout. ``--out`` defaults to ``<run dir>/eval/<date-time>`` beside the first
+checkpoint (its run directory: the parent of ``checkpoints/``), so a quick evaluation never writes into the
+repository's ``docs/``.
+
+Everything a user passes is checked before any dataset is generated or any episode run, each problem one
+line naming the option: the ``--run`` and ``--baseline`` syntax, every ``--baseline`` file (JSON of a
+``baselines/`` result), every config's data section, and every checkpoint (read as untrusted,
+``checkpoints.py``) against its config's data: a policy (not a RewardGen reward model) trained on that
+data's context kind, state size, action space and context length, so a bandit checkpoint with an MDP config
+(or the reverse) is refused up front.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-from typing import Any
+import time
+from pathlib import Path
+from typing import Any, NoReturn
 
 import numpy as np
 
-from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.deploy import load_agent
 from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, applicable, diagnose_suite
 from icprl_lightning.evaluation.duels import BASELINES, curve_mean_sem, seed_mean_curves, summarize_regret
-from icprl_lightning.evaluation.report import baseline_row, reference_rows, write_outputs
+from icprl_lightning.evaluation.pairing import is_bandit_data, run_datamodule
+from icprl_lightning.evaluation.report import (
+    aligned_tables,
+    baseline_row,
+    markdown_tables,
+    read_baseline,
+    reference_rows,
+    write_outputs,
+)
 from icprl_lightning.evaluation.rollout import episode_stats, rollout_seeds, suite_env
 from icprl_lightning.metrics import mean_sem
 
 RESERVED = {"behavior", "optimal", "expert", *BASELINES}
+
+
+def fail(parser: argparse.ArgumentParser, message: str) -> NoReturn:
+    """Exit 2 with one line on stderr: a file or a pairing is wrong, not the command's syntax (no usage text)."""
+    parser.exit(2, f"{parser.prog}: error: {message}\n")
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -70,7 +91,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="context diagnostics beside the own-context rows: flipped_labels, random_labels, "
                         "other_task, shuffled_order (evaluation.diagnostics)")
     parser.add_argument("--title", default="held-out tasks", help="figure title")
-    parser.add_argument("--out", required=True, help="output path without extension")
+    parser.add_argument("--out", help="output path without extension (default: <run dir>/eval/<date-time> of the "
+                        "first checkpoint)")
     args = parser.parse_args(argv)
     args.runs = {}
     for spec in args.run:
@@ -87,8 +109,33 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args.reference = args.reference or next(iter(args.runs))
     if args.reference not in args.runs:
         parser.error(f"--reference {args.reference!r} names no --run (runs: {', '.join(args.runs)})")
+    args.baselines = {}
+    for spec in args.baseline:  # read now: a bad file fails here, not after the whole evaluation
+        name, _, path = spec.partition("=")
+        if not (name and path):
+            parser.error(f"--baseline {spec!r} is not NAME=JSON")
+        if name in RESERVED or name in args.runs or name in args.baselines:
+            parser.error(f"--baseline name {name!r} is taken (a --run, another --baseline or a reference row)")
+        try:
+            args.baselines[name] = read_baseline(path)
+        except ValueError as e:
+            fail(parser, str(e))
+    args.out = args.out or str(default_out(next(iter(args.runs.values()))[1][0]))
     args.parser = parser
     return args
+
+
+def default_out(checkpoint: str) -> Path:
+    """``<run dir>/eval/<date-time>``: the run directory holds ``checkpoints/`` (Lightning's layout), else it is
+    the checkpoint's own directory; a name already taken gets ``-2``, ``-3``, ..."""
+    path = Path(checkpoint)
+    run_dir = path.parent.parent if path.parent.name == "checkpoints" else path.parent
+    out = base = run_dir / "eval" / time.strftime("%Y%m%d-%H%M%S")
+    k = 1
+    while out.with_suffix(".json").exists():
+        k += 1
+        out = base.with_name(f"{base.name}-{k}")
+    return out
 
 
 def over_training_seeds(per_seed: list[dict[str, float]]) -> dict[str, Any]:
@@ -162,11 +209,6 @@ def evaluate_bandit(dm, checkpoints: list[str], name: str, seeds: list[int], gre
     return summaries, curves
 
 
-def _is_bandit(dm) -> bool:
-    """Bandit DataModules evaluate by weak regret (``bandit_suites``) and offer no rollout suites."""
-    return hasattr(dm, "bandit_suites") and not dm.evaluation_suites()
-
-
 def bandit_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | None) -> dict[str, Any]:
     """Weak-regret summaries and curves of every run, with DTS and behaviour rows from the reference's dataset."""
     results, curves, diagnostics = {}, {}, {}
@@ -202,9 +244,8 @@ def rollout_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | 
             row.pop("reference")
     results.update(references)
     qualities = list(results[args.reference])
-    for spec in args.baseline:
-        name, _, path = spec.partition("=")
-        results[name] = baseline_row(path, qualities)
+    for name, result in args.baselines.items():
+        results[name] = baseline_row(result, qualities)
     return {"contexts": ["own", *args.diagnostics], "runs": args.run, "baselines": args.baseline,
             "reference_rows_from": args.reference, "results": results, "diagnostics": diagnostics}
 
@@ -213,19 +254,27 @@ def main(argv: list[str] | None = None) -> dict:
     args = parse_args(argv)
     greedy = False if args.sample else True if args.greedy else None  # None: each method's own default
     datamodules = {}
-    for name, (config, _) in args.runs.items():
-        datamodules[name] = datamodule_from_config(config)
-        datamodules[name].prepare_data()
-    kinds = {name: _is_bandit(dm) for name, dm in datamodules.items()}
+    for name, (config, checkpoints) in args.runs.items():  # every check before any dataset is generated
+        try:
+            datamodules[name] = run_datamodule(name, config, checkpoints)
+        except ValueError as e:
+            fail(args.parser, str(e))
+    kinds = {name: is_bandit_data(dm) for name, dm in datamodules.items()}
     if len(set(kinds.values())) > 1:
-        args.parser.error("runs mix dueling bandits with MDP families: "
+        fail(args.parser, "runs mix dueling bandits with MDP families: "
                           + ", ".join(f"{n} ({'bandit' if b else 'MDP'})" for n, b in kinds.items()))
     bandit = kinds[args.reference]
     if bandit and args.baseline:
-        args.parser.error("--baseline applies to MDP families, not dueling bandits")
+        fail(args.parser, "--baseline applies to MDP families, not dueling bandits")
+    for name, dm in datamodules.items():
+        dm.prepare_data()
+        if not bandit and not dm.evaluation_suites():
+            fail(args.parser, f"--run {name}: the data of {args.runs[name][0]} has no held-out rollouts to "
+                              "evaluate on (recorded data has no simulator); use a task family's config")
     actions_used = "sampled" if args.sample else "greedy" if args.greedy else "each method's default"
     payload: dict[str, Any] = {"title": args.title, "seeds": args.seeds, "actions": actions_used}
     payload.update((bandit_payload if bandit else rollout_payload)(args, datamodules, greedy))
     write_outputs(payload, args.out)
-    print(json.dumps({k: v for k, v in payload.items() if k != "curves"}, indent=2))
+    print(aligned_tables(markdown_tables(payload)), flush=True)
+    print(f"wrote {args.out}.json, {args.out}.md, {args.out}.png", flush=True)
     return payload

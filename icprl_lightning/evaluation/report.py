@@ -104,9 +104,30 @@ def reference_rows(first: dict[str, dict]) -> dict[str, dict[str, dict[str, floa
     return {"behavior": behavior, "optimal" if optimal else "expert": best}
 
 
-def baseline_row(path: str | Path, qualities: list[str]) -> dict[str, dict[str, float]]:
-    """A from-scratch baseline's JSON (``baselines/``) as the same row for every quality."""
-    result = json.loads(Path(path).read_text())
+def read_baseline(path: str | Path) -> dict[str, Any]:
+    """A from-scratch baseline's JSON (``baselines/``), checked to hold at least one of ``MDP_METRICS`` as
+    ``{"mean": number, "sem": number}``; anything else is one ``ValueError`` naming the file (before any work)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"--baseline {path}: no such file")
+    try:
+        result = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"--baseline {path} is not valid JSON ({e})") from None
+    expected = f'a baselines/ result: a JSON object with {" / ".join(MDP_METRICS)} as {{"mean": x, "sem": s}}'
+    if not isinstance(result, dict) or not any(m in result for m in MDP_METRICS):
+        raise ValueError(f"--baseline {path} is not {expected}")
+    for metric in (m for m in MDP_METRICS if m in result):
+        value = result[metric]
+        numbers = isinstance(value, dict) and all(
+            isinstance(value.get(k), int | float) and not isinstance(value.get(k), bool) for k in ("mean", "sem"))
+        if not numbers:
+            raise ValueError(f"--baseline {path}: {metric!r} is {value!r}, not {{\"mean\": number, \"sem\": number}}")
+    return result
+
+
+def baseline_row(result: dict[str, Any], qualities: list[str]) -> dict[str, dict[str, float]]:
+    """A from-scratch baseline's result (``read_baseline``) as the same row for every quality."""
     row = {}
     for metric in MDP_METRICS:
         if metric in result:
@@ -289,14 +310,40 @@ def regret_figure(payload: dict, path: str | Path) -> None:
     fig.savefig(path, dpi=120)
 
 
+def aligned_tables(markdown: str) -> str:
+    """``markdown`` with each pipe table's columns padded to one width, for a terminal (still valid markdown)."""
+    lines, out = markdown.splitlines(), []
+    i = 0
+    while i < len(lines):
+        if not lines[i].startswith("|"):
+            out.append(lines[i])
+            i += 1
+            continue
+        block = []
+        while i < len(lines) and lines[i].startswith("|"):
+            block.append([c.strip() for c in lines[i].strip().strip("|").split("|")])
+            i += 1
+        rule = {r for r, row in enumerate(block) if all(set(c) <= {"-", ":"} and c for c in row)}
+        widths = [max(len(row[k]) for r, row in enumerate(block) if r not in rule and k < len(row))
+                  for k in range(max(map(len, block)))]
+        for r, row in enumerate(block):
+            cells = ["-" * w if r in rule else (row[k] if k < len(row) else "").ljust(w) for k, w in enumerate(widths)]
+            out.append("| " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
+def markdown_tables(payload: dict[str, Any]) -> str:
+    """The tables of ``<out>.md``: weak regret (bandits, with ``curves``) or held-out returns (MDP families)."""
+    return regret_markdown(payload) if "curves" in payload else rollout_markdown(payload)
+
+
 def write_outputs(payload: dict[str, Any], out: str | Path) -> None:
     """``<out>.json`` (all numbers), ``<out>.md`` (the tables), ``<out>.png`` (the figure) and, with context
     diagnostics, ``<out>_diagnostics.png``."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(payload, indent=2))
-    bandit = "curves" in payload
-    out.with_suffix(".md").write_text(regret_markdown(payload) if bandit else rollout_markdown(payload))
+    out.with_suffix(".md").write_text(markdown_tables(payload))
     write_figures(payload, out)
 
 

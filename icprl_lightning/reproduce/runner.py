@@ -18,9 +18,11 @@ Each fit logs to CSV; the rollout callback's held-out returns per epoch become `
 the summary and ``docs/results/<table>_curve.png``. A finished fit records its checkpoint in
 ``<run>-seed<s>.json`` with a digest of its inputs (the fit command and the text of its config files);
 running the command again skips a fit whose inputs are unchanged, so an interrupted reproduction resumes
-where it stopped, and retrains one whose command or configs changed since (``--refit`` trains all
-again). The command prints, and writes to ``docs/results/<table>_reproduce.json``, each stage's
-wall-clock seconds, the checkpoints and the exact commands.
+where it stopped, and retrains one whose command or configs changed since, or whose recorded checkpoint
+file is gone (``--refit`` trains all again). Every record is read before the first fit starts: a damaged
+or foreign one (not JSON, or not a record's shape) is one error naming it, never a traceback mid-run.
+The command prints, and writes to ``docs/results/<table>_reproduce.json``, each stage's wall-clock
+seconds, the checkpoints and the exact commands.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import argparse
 import hashlib
 import json
 import os
+import re
 import shlex
 import subprocess
 import sys
@@ -41,6 +44,30 @@ from icprl_lightning.io import write_json_atomic
 from icprl_lightning.reproduce.figures import FIGURES, curve_figure
 from icprl_lightning.reproduce.fit_logs import final_epoch_means, learning_curve
 from icprl_lightning.reproduce.tables import TABLES, Evaluation, Run, Table, slug
+
+
+class RecordError(ValueError):
+    """A fit record (``<run>-seed<s>.json``) that is not one: damaged or foreign; names the file and the way out."""
+
+
+def read_record(path: Path) -> dict | None:
+    """The fit record at ``path`` (None if there is none), checked to be what ``_run_fit`` writes: a JSON object
+    whose ``checkpoint`` (and, if present, ``inputs_sha256``) is a string; anything else is a ``RecordError``."""
+    if not path.exists():
+        return None
+    fix = "delete it, or pass --refit to train every run again"
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise RecordError(f"fit record {path} is damaged ({e}); {fix}") from None
+    if not isinstance(record, dict):
+        raise RecordError(f"fit record {path} is not an icprl reproduce record (a JSON {type(record).__name__}, "
+                          f"not an object with 'checkpoint' and 'inputs_sha256'); {fix}")
+    for key, required in (("checkpoint", True), ("inputs_sha256", False)):
+        if (required or key in record) and not isinstance(record.get(key), str):
+            raise RecordError(f"fit record {path} is not an icprl reproduce record: its {key!r} is "
+                              f"{record.get(key)!r}, not a string; {fix}")
+    return record
 
 
 def fit_command(run: Run, seed: int, root: Path, needed: dict[str, str] | None = None) -> list[str]:
@@ -107,11 +134,13 @@ def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: 
                               stderr=subprocess.STDOUT, env=env).returncode
     if code != 0:
         raise RuntimeError(f"{shlex.join(command)} failed (exit {code}); its log: {log}")
-    last = [line.split(":", 1)[1].strip() for line in log.read_text().splitlines()
-            if line.startswith(f"{which} checkpoint:")]
+    # "last checkpoint (epoch 0, step 2): PATH" or "best checkpoint (val/loss = 0.5, epoch 3): PATH"
+    line = re.compile(rf"^{which} checkpoint(?: \(.*?\))?: (.+)$")
+    last = [m.group(1).strip() for m in map(line.match, log.read_text().splitlines()) if m]
     if not last:
-        raise RuntimeError(f"{shlex.join(command)} printed no '{which} checkpoint:' line; its log: {log}")
-    result = {"command": shlex.join(command), "inputs_sha256": inputs, "checkpoint": last[-1],
+        raise RuntimeError(f"{shlex.join(command)} printed no '{which} checkpoint' line; its log: {log}")
+    checkpoint = str(Path(last[-1]).absolute())  # the fit ran in this working directory
+    result = {"command": shlex.join(command), "inputs_sha256": inputs, "checkpoint": checkpoint,
               "seconds": round(time.time() - start, 1)}
     write_json_atomic(record, result)
     return result
@@ -149,6 +178,9 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
                 if not set(run_seeds[run.name]) <= set(run_seeds[name]):
                     raise ValueError(f"{run.name} needs {name} at training seeds {run_seeds[run.name]}, "
                                      f"which has only {run_seeds[name]}")
+    # every record read now, before any fit starts: a bad one stops the command here, not between fits
+    records = {} if refit else {(run.name, s): read_record(root / f"{slug(run.name)}-seed{s}.json")
+                                for run in table.runs for s in run_seeds[run.name]}
     start = time.time()
     order = [run for stage in stages(table.runs) for run in stage]  # every fit after the fits it needs
 
@@ -161,10 +193,13 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
         record = root / f"{slug(run.name)}-seed{seed}.json"
         command = fit_command(run, seed, root / "runs", paths)
         inputs = fit_inputs(run, command, tuple(n["inputs_sha256"] for n in needed))
-        recorded = json.loads(record.read_text()) if record.exists() and not refit else None
-        if recorded is not None and recorded.get("inputs_sha256") == inputs:
+        recorded = records.get((run.name, seed))
+        if recorded is not None and not Path(recorded["checkpoint"]).is_file():
+            print(f"{run.name} seed {seed}: the checkpoint {recorded['checkpoint']} recorded in {record} is gone; "
+                  "training it again", flush=True)
+        elif recorded is not None and recorded.get("inputs_sha256") == inputs:
             return recorded
-        if recorded is not None:
+        elif recorded is not None:
             print(f"{run.name} seed {seed}: its command, configs or earlier stages changed since {record} was "
                   "written; training it again", flush=True)
         if dry_run:
@@ -270,5 +305,8 @@ def main(argv: list[str] | None = None) -> dict:
         sources = redraw(TABLES[args.table], Path(args.out))
         print(f"{args.table}: figures redrawn from {', '.join(map(str, sources))}", flush=True)
         return {}
-    return reproduce(TABLES[args.table], args.seeds, args.jobs, Path(args.work), Path(args.out), args.refit,
-                     args.dry_run, args.threads, args.only)
+    try:
+        return reproduce(TABLES[args.table], args.seeds, args.jobs, Path(args.work), Path(args.out), args.refit,
+                         args.dry_run, args.threads, args.only)
+    except RecordError as e:  # a user's file, not a bug: one line, no traceback
+        parser.exit(2, f"{parser.prog}: error: {e}\n")

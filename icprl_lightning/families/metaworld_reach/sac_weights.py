@@ -1,9 +1,12 @@
 """The SAC oracle as plain weights: a small, versioned, checksummed directory that loads without pickle.
 
 A trained SAC oracle (``sac.py``) is a directory of Stable-Baselines3 zips, which ``SAC.load`` reads by
-unpickling; they are large (optimizer states, target critics) and not something to load from an untrusted
-place. ``export_sac_oracle`` keeps only what data generation needs (appendix "Pretraining Data
-Generation"):
+unpickling (the zip's ``data`` member holds cloudpickled objects); they are large (optimizer states, target
+critics) and not something to load from an untrusted place. ``export_sac_oracle`` keeps only what data
+generation needs (appendix "Pretraining Data Generation"), and reads it without unpickling anything: from
+each zip only the ``policy.pth`` member, with ``torch.load(weights_only=True)`` (tensors only; a pickle
+naming any other object is refused before it is called), and from the run only its ``summary.json``. So
+exporting an untrusted run never runs code from it:
 
 * the actor of each behavior checkpoint, chosen by its return normalized between uniform actions (0) and
   the final policy (1), e.g. the 20/40/50/80% policies, and of the final (converged) policy π;
@@ -26,8 +29,10 @@ Export (from a training run's directory; ``--targets`` are the behavior policies
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
+import zipfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -47,6 +52,7 @@ LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SB3's clamp of the actor's log-std
 HIDDEN = 256
 FINAL = 1.0  # the level of the final (converged) policy
 DEFAULT_TARGETS = (0.2, 0.4, 0.5, 0.8)  # I-PRL's 20/80% pair, the 40% medium contexts, T-PRL's 50%
+POLICY_MEMBER = "policy.pth"  # the SB3 zip member holding the policy's state dict (actor, critic, target critic)
 
 
 def _mlp(inputs: int, outputs: int | None) -> nn.Sequential:
@@ -87,18 +93,79 @@ def _level_name(level: float) -> str:
     return f"{round(100 * level):03d}"
 
 
+def sb3_policy_tensors(path: str | Path) -> dict[str, torch.Tensor]:
+    """The state dict in an SB3 zip's ``policy.pth`` member, read with ``weights_only=True``; the rest of the zip
+    (``data``'s cloudpickled objects, optimizer states) is never read. Anything else is a ``ValueError`` naming
+    the file."""
+    path = Path(path)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            if POLICY_MEMBER not in archive.namelist():
+                raise ValueError(f"{path} is not a Stable-Baselines3 checkpoint: no {POLICY_MEMBER} member")
+            raw = archive.read(POLICY_MEMBER)
+    except (OSError, zipfile.BadZipFile) as e:
+        raise ValueError(f"{path} is not a readable Stable-Baselines3 zip ({type(e).__name__}: {e})") from None
+    try:
+        state = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises many types; an UnpicklingError for a pickle naming a disallowed global
+        first = (str(e).strip().splitlines() or [""])[0][:200]
+        raise ValueError(f"{path}: its {POLICY_MEMBER} was refused: it holds more than tensors (pickled objects, "
+                         f"which could run code) or is damaged ({type(e).__name__}: {first})") from None
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise ValueError(f"{path}: its {POLICY_MEMBER} is not a state dict of tensors")
+    return state
+
+
+def _load_part(state: Mapping[str, torch.Tensor], prefix: str, module: nn.Module, path: Path) -> nn.Module:
+    """``module`` with the entries of ``state`` under ``prefix`` (``actor.``, ``critic.``), keys and shapes strict."""
+    part = {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
+    try:
+        module.load_state_dict(part, strict=True)
+    except RuntimeError as e:
+        first = str(e).strip().splitlines()[0]
+        raise ValueError(f"{path}: its {prefix.rstrip('.')} does not fit SB3's 256-256 MlpPolicy for Reach "
+                         f"({first})") from None
+    return module
+
+
+def _run_summary(run_dir: Path) -> dict[str, Any]:
+    """A training run's ``summary.json`` (plain JSON), checked for the schema ``sac.py`` writes."""
+    from icprl_lightning.families.metaworld_reach.sac import SCHEMA_VERSION, SUMMARY
+
+    path = run_dir / SUMMARY
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: train a run with `python -m icprl_lightning.families."
+                                "metaworld_reach.sac`")
+    try:
+        summary = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path} is not valid JSON ({e})") from None
+    if not isinstance(summary, dict) or summary.get("schema_version") != SCHEMA_VERSION:
+        raise ValueError(f"{path} is not a SAC oracle summary of schema {SCHEMA_VERSION}")
+    return summary
+
+
+def _checkpoint_in(run_dir: Path, relative: str) -> Path:
+    """``run_dir / relative``, refused if the summary points outside the run directory."""
+    path = (run_dir / relative).resolve()
+    if not path.is_relative_to(run_dir.resolve()):
+        raise ValueError(f"{run_dir}: the summary names checkpoint {relative!r}, outside the run directory")
+    return path
+
+
 def export_sac_oracle(run_dir: str | Path, out: str | Path, targets: Sequence[float] = DEFAULT_TARGETS,
                       overwrite: bool = False) -> Path:
     """Write the weights-only oracle of a training run (``sac.py``'s directory) to ``out``; see the docstring.
 
     For each target, the checkpoint whose sampled-action evaluation return, normalized between uniform (0)
-    and the final checkpoint (1), is closest (ties: the earlier one); the final policy is level 1.0.
+    and the final checkpoint (1), is closest (ties: the earlier one); the final policy is level 1.0. The
+    zips are read by ``sb3_policy_tensors`` only: nothing of the run is unpickled.
     """
-    from icprl_lightning.families.metaworld_reach.sac import SACOracle, calibrate_checkpoints
+    from icprl_lightning.families.metaworld_reach.sac import calibrate_checkpoints
     from icprl_lightning.families.sb3_common import EvalRecord
 
-    source = SACOracle(run_dir)
-    summary = source.summary
+    run_dir = Path(run_dir)
+    summary = _run_summary(run_dir)
     for t in targets:
         if not 0.0 < t < 1.0:
             raise ValueError(f"targets must lie strictly between 0 and 1, got {t}")
@@ -108,20 +175,25 @@ def export_sac_oracle(run_dir: str | Path, out: str | Path, targets: Sequence[fl
     out = Path(out)
     if (out.exists() or out.is_symlink()) and not overwrite:
         raise FileExistsError(f"{out} exists; delete it or pass overwrite=True (--overwrite)")
+    levels = {**chosen, _level_name(FINAL): {"target": FINAL, "path": summary["final"]["path"],
+                                             "step": summary["final"]["step"], "return": summary["final"]["return"],
+                                             "success": summary["final"]["success"], "achieved": 1.0}}
+    # every zip read (and refused) before anything is written
+    actors = {}
+    for name, c in levels.items():
+        zip_path = _checkpoint_in(run_dir, c["path"])
+        actors[name] = _load_part(sb3_policy_tensors(zip_path), "actor.", SACActor(), zip_path)
+    final = _checkpoint_in(run_dir, summary["final"]["path"])
+    critic = _load_part(sb3_policy_tensors(final), "critic.", SACCritic(), final)
     with staged_directory(out, marker=MANIFEST, schema_version=FORMAT_VERSION, what=WHAT,
                           overwrite=overwrite) as tmp:
         policies = {}
-        for name, c in {**chosen, _level_name(FINAL): {"target": FINAL, "path": summary["final"]["path"],
-                                                       "step": summary["final"]["step"],
-                                                       "return": summary["final"]["return"],
-                                                       "success": summary["final"]["success"],
-                                                       "achieved": 1.0}}.items():
-            model = source.load_checkpoint(c["path"])
-            torch.save(model.actor.state_dict(), tmp / f"actor_{name}.pt")
+        for name, c in levels.items():
+            torch.save(actors[name].state_dict(), tmp / f"actor_{name}.pt")
             policies[name] = {"level": c["target"], "file": f"actor_{name}.pt", "step": c["step"],
                               "eval_return": c["return"], "eval_success": c["success"],
                               "normalized_return": c["achieved"]}
-        torch.save(source.model.critic.state_dict(), tmp / "critic_final.pt")
+        torch.save(critic.state_dict(), tmp / "critic_final.pt")
         manifest = {"schema_version": FORMAT_VERSION, "policies": policies, "critic": "critic_final.pt",
                     "reward_scale": summary.get("reward_scale", 1.0),
                     "normalization": "sampled-action evaluation return, (R - R_uniform) / (R_final - R_uniform)",

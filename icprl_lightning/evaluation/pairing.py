@@ -1,0 +1,83 @@
+"""Does a checkpoint fit the data it is about to be evaluated on? ``icprl evaluate``'s check, run before any
+dataset is generated or any episode played.
+
+A run of ``icprl evaluate`` pairs a config (whose data section names the held-out tasks) with checkpoints.
+``icprl fit`` links the model's sizes from that data (``state_dim``, ``action_dim``, ``discrete``,
+``max_context`` = the context length) and checks the context kind (``validation.pairing_errors``); a
+checkpoint evaluated with another config skips both, and would fail late (a shape error deep in a
+rollout) or, worse, run on data it was never trained for. ``run_datamodule`` builds the config's
+DataModule (nothing generated), reads every checkpoint as untrusted (``checkpoints.load_module``) and
+compares the two, so a bandit checkpoint with an MDP config (or the reverse), a RewardGen reward model,
+or a model of another size is one ``ValueError`` naming the run, the checkpoint and the config.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import yaml
+
+from icprl_lightning.checkpoints import load_module
+from icprl_lightning.data.config import datamodule_from_config
+from icprl_lightning.validation import consumed_kinds, data_offers
+
+
+def is_bandit_data(datamodule: Any) -> bool:
+    """Dueling-bandit data (weak regret, ``bandit_suites``) rather than an MDP family's (rollouts); known from the
+    DataModule's arguments alone, before its data exists."""
+    return data_offers(datamodule, "bandit_suites")
+
+
+def _sizes(kind: str, state_dim: int, discrete: bool, actions: int, length: int) -> str:
+    return (f"{kind} contexts, state_dim {state_dim}, {actions} {'discrete actions' if discrete else 'action dims'}, "
+            f"context length {length}")
+
+
+def fit_errors(module: Any, datamodule: Any) -> list[str]:
+    """Every way ``module`` (a loaded checkpoint) cannot deploy on ``datamodule``'s held-out tasks, each a phrase
+    after the module's class name (empty: it fits)."""
+    if getattr(module, "policy", None) is None:  # RewardGen: a reward model, deployed only inside ICRG
+        return ["holds a reward model, not a policy (evaluate the ICRG checkpoint trained on it)"]
+    kinds, spec = consumed_kinds(module) or (), module.action_spec
+    state_dim, max_context = module.hparams["state_dim"], module.hparams["max_context"]
+    data_spec = datamodule.action_spec
+    errors = []
+    if datamodule.context_kind not in kinds:
+        errors.append(f"takes {' or '.join(kinds)} contexts, the data {datamodule.context_kind}")
+    if state_dim != datamodule.state_dim:
+        errors.append(f"has state_dim {state_dim}, the data {datamodule.state_dim}")
+    if (spec.discrete, spec.size) != (data_spec.discrete, data_spec.size):
+        kind = {True: "discrete actions", False: "action dims"}
+        errors.append(f"has {spec.size} {kind[spec.discrete]}, the data {data_spec.size} {kind[data_spec.discrete]}")
+    if max_context < datamodule.context_length:
+        errors.append(f"has max_context {max_context}, shorter than the data's contexts ({datamodule.context_length})")
+    return errors
+
+
+def _config_error(error: BaseException) -> str:
+    """jsonargparse and yaml spread one problem over several lines: join them into one, short."""
+    return " ".join(line.strip() for line in str(error).splitlines() if line.strip())[:300]
+
+
+def run_datamodule(name: str, config: str, checkpoints: list[str]) -> Any:
+    """``config``'s DataModule (no data generated yet) after checking every checkpoint of run ``name`` fits it;
+    else one ``ValueError`` naming the run, the file and what does not fit."""
+    try:
+        datamodule = datamodule_from_config(config)
+    except (OSError, ValueError, yaml.YAMLError, argparse.ArgumentError) as e:
+        raise ValueError(f"--run {name}: config {config} does not give a DataModule ({_config_error(e)})") from None
+    family = getattr(getattr(datamodule, "family", None), "name", type(datamodule).__name__)
+    data = (f"{'dueling-bandit' if is_bandit_data(datamodule) else 'MDP'} data ({family}: "
+            + _sizes(datamodule.context_kind, datamodule.state_dim, datamodule.action_spec.discrete,
+                     datamodule.action_spec.size, datamodule.context_length) + ")")
+    for checkpoint in checkpoints:
+        try:
+            module = load_module(checkpoint)
+        except (ValueError, FileNotFoundError) as e:
+            raise ValueError(f"--run {name}: {e}") from None
+        errors = fit_errors(module, datamodule)
+        if errors:
+            raise ValueError(f"--run {name}: {checkpoint} does not fit the {data} of {config}: "
+                             f"{type(module).__name__} {'; '.join(errors)}")
+    return datamodule
