@@ -31,6 +31,7 @@ from icprl_lightning.data.suites import BanditSuite
 from icprl_lightning.deploy import Agent
 from icprl_lightning.families.dueling_bandit.dts import DoubleThompsonSampling
 from icprl_lightning.metrics import mean_sem, weak_regret
+from icprl_lightning.progress import track
 
 Duels = tuple[Tensor, Tensor]
 BASELINES = ("dts", "behavior")
@@ -65,15 +66,17 @@ def agent_duels(agent: Agent, context: StepPreferenceContext, rng: np.random.Gen
     return first, (first + offset) % n_arms
 
 
-def dts_duels(context: StepPreferenceContext, n_arms: int, rng: np.random.Generator, alpha: float = 0.51) -> Duels:
-    """DTS's duel after each prefix D_{1:h}, h = 1..H: observe comparison h, then select."""
+def dts_duels(context: StepPreferenceContext, n_arms: int, rng: np.random.Generator, alpha: float = 0.51,
+              progress: bool = True) -> Duels:
+    """DTS's duel after each prefix D_{1:h}, h = 1..H: observe comparison h, then select (``progress``: the
+    prefixes are counted, ``progress.track``)."""
     actions, alt_actions = context.actions.cpu().numpy(), context.alt_actions.cpu().numpy()
     preferred = (context.preferred.cpu().numpy() > 0.5).astype(np.uint8)
     b, h = preferred.shape
     dts = DoubleThompsonSampling(n_arms, b, alpha, rng=rng)
     first = np.empty((b, h), dtype=np.int64)
     second = np.empty((b, h), dtype=np.int64)
-    for t in range(h):
+    for t in track(range(h), "DTS duels", unit="prefix", enabled=progress):
         dts.update(actions[:, t], alt_actions[:, t], preferred[:, t])
         first[:, t], second[:, t] = dts.select()
     return torch.from_numpy(first), torch.from_numpy(second)

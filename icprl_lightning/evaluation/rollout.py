@@ -28,6 +28,7 @@ import torch
 
 from icprl_lightning.data.suites import EvalSuite
 from icprl_lightning.metrics import mean_sem, per_task_mean
+from icprl_lightning.progress import Progress
 
 
 class AgentLike(Protocol):
@@ -48,16 +49,18 @@ def suite_env(suite: EvalSuite) -> Iterator[Any]:
 
 
 @torch.no_grad()
-def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0, env: Any = None) -> dict[str, np.ndarray]:
+def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0, env: Any = None,
+                       progress: bool = True) -> dict[str, np.ndarray]:
     """Run one episode per context; returns per-episode ``return`` [B] (and ``success`` when the env reports it).
 
     ``success`` is 1 for an episode whose ``info["success"]`` was true at any step (metaworld's criterion).
     ``env``: a vector env of the suite's tasks to reuse (``suite_env``), left open; by default a fresh one,
-    closed afterwards.
+    closed afterwards. ``progress``: the steps are counted (``progress.Progress``: a bar in a terminal,
+    plain lines in a log when the episodes take long).
     """
     if env is None:
         with suite_env(suite) as fresh:
-            return rollout_in_context(agent, suite, seed, fresh)
+            return rollout_in_context(agent, suite, seed, fresh, progress)
     if env.num_envs != len(suite.task_index):
         raise ValueError(f"env: {env.num_envs} envs for a suite of {len(suite.task_index)} episodes")
     obs, _ = env.reset(seed=seed)
@@ -65,15 +68,17 @@ def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0, env: A
     total = np.zeros(env.num_envs)
     success = np.zeros(env.num_envs, dtype=bool)
     reports_success = False
-    for _ in range(suite.horizon):
-        actions = agent.act(torch.as_tensor(obs, dtype=torch.float32))
-        obs, reward, terminated, truncated, info = env.step(actions.cpu().numpy())
-        total += reward
-        if "success" in info:
-            reports_success = True
-            success |= np.asarray(info["success"], dtype=bool)
-        if np.all(terminated | truncated):
-            break
+    with Progress(suite.horizon, f"rollouts {suite.env_name}/{suite.quality}", enabled=progress) as steps:
+        for _ in range(suite.horizon):
+            actions = agent.act(torch.as_tensor(obs, dtype=torch.float32))
+            obs, reward, terminated, truncated, info = env.step(actions.cpu().numpy())
+            total += reward
+            steps.advance()
+            if "success" in info:
+                reports_success = True
+                success |= np.asarray(info["success"], dtype=bool)
+            if np.all(terminated | truncated):
+                break
     out = {"return": total}
     if reports_success:
         out["success"] = success.astype(np.float64)

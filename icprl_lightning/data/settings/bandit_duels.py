@@ -35,7 +35,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from rich.progress import track
 
 from icprl_lightning.annotators.base import Annotator, StepQueries
 from icprl_lightning.annotators.labels import stored_labels
@@ -46,6 +45,7 @@ from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.data.suites import BanditSuite, EvalSuite
 from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
 from icprl_lightning.preferences import label_agreement
+from icprl_lightning.progress import track
 from icprl_lightning.validation import HyperparameterError, check_int
 
 EVAL_SOURCES = ("uniform", "dirichlet", "dts")
@@ -107,7 +107,7 @@ class BanditDuels(Setting):
         task_index = np.repeat(np.arange(len(theta)), per_problem).astype(np.int32)
         chunks, agree = [], []
         starts = range(0, len(task_index), _CHUNK)
-        for start in track(starts, description=description, disable=not progress, transient=True):
+        for start in track(starts, description, unit="chunk", enabled=progress):
             rows = theta[task_index[start:start + _CHUNK]]
             context = family.uniform_pairs_context(rows, rng)
             if self.annotator is not None:

@@ -27,7 +27,6 @@ from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
-from rich.progress import track
 
 from icprl_lightning.annotators.base import Annotator
 from icprl_lightning.annotators.bradley_terry import BradleyTerryAnnotator
@@ -36,6 +35,7 @@ from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.data.suites import EvalSuite
 from icprl_lightning.families.base import QUALITIES, Family, TaskFamily
+from icprl_lightning.progress import track
 from icprl_lightning.validation import HyperparameterError, check_choice, check_increasing, check_int, check_positive
 
 PRETRAINING = "pretraining"  # name of a setting's extra calibrated policy (T-PRL's 50% policy)
@@ -88,8 +88,8 @@ def annotator_knobs(annotator: Annotator) -> dict[str, Any]:
 
 
 def steps(horizon: int, description: str, progress: bool) -> Iterator[int]:
-    """range(horizon) with a transient progress bar."""
-    return track(range(horizon), description=description, disable=not progress, transient=True)
+    """range(horizon), counted by ``progress.track``: a transient bar in a terminal, plain lines in a log."""
+    return track(range(horizon), description, enabled=progress)
 
 
 def chunks(n: int, limit: int | None, description: str) -> Iterator[tuple[slice, str]]:

@@ -1,0 +1,248 @@
+"""``icprl report RUN_DIR``: a run's learning curves and last held-out results, offline, from its CSV metrics.
+
+    icprl report runs/icprl/<run id>            # prints the report, writes <run>/curves.png
+    icprl report runs/icprl/<run id> --figure out.png
+
+Reads the run's ``metrics.csv`` (``callbacks/run_logs.py`` writes ``<run>/csv/metrics.csv`` beside W&B; a
+run whose first logger is a ``CSVLogger`` has ``<run>/metrics.csv``) and prints:
+
+* the learning curves: per metric its first, last and best value and the step (epoch) of each; best is
+  the lowest for losses, regrets and errors, the highest otherwise (``lower_is_better``); standard errors
+  and the constant behavior/optimal/expert references are left to the table below;
+* the last held-out results: the rollout table (``val/<env>/<quality>/{return, normalized_return, success}``
+  per quality, with the behavior and optimal/expert rows as logged) and the bandits' weak-regret table
+  (``evaluation.report``);
+
+and draws the curves, one panel per kind of metric (``loss``, ``normalized_return``, ...), into a PNG
+with matplotlib's ``Figure`` (Agg; no display or server).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import re
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+from icprl_lightning.evaluation.report import regret_table, results_table
+from icprl_lightning.families.base import QUALITIES
+
+FIGURE_NAME = "curves.png"
+MAX_PANELS = 12
+REFERENCE = re.compile(r"(^|/)(behavior|optimal|expert)_")  # the dataset's constant references, not curves
+ROLLOUT_KEYS = ("return", "normalized_return", "success", "behavior_return", "behavior_normalized_return",
+                "behavior_success", "optimal_return", "expert_return", "expert_success")
+REGRET_KEYS = ("weak_regret", "weak_regret_auc")
+FIRST_PANELS = ("loss", "normalized_return", "return", "success", "weak_regret")
+
+
+@dataclass
+class Point:
+    step: int
+    epoch: int | None
+    value: float
+
+    def when(self) -> str:
+        return f"step {self.step}" + ("" if self.epoch is None else f" (epoch {self.epoch})")
+
+
+Curves = dict[str, list[Point]]
+
+
+def find_metrics(run: Path) -> Path:
+    """The run's ``metrics.csv``: ``run`` itself if it is the file, else ``<run>/metrics.csv``, else
+    ``<run>/csv/metrics.csv``, else the only one under ``run``; a ``ValueError`` naming ``run`` otherwise."""
+    if run.is_file():
+        return run
+    if not run.is_dir():
+        raise ValueError(f"{run}: no such run directory")
+    for candidate in (run / "metrics.csv", run / "csv" / "metrics.csv"):
+        if candidate.is_file():
+            return candidate
+    found = sorted(p for p in run.rglob("metrics.csv") if "wandb" not in p.relative_to(run).parts)
+    if len(found) == 1:
+        return found[0]
+    if found:
+        raise ValueError(f"{run}: several metrics.csv ({', '.join(str(p.relative_to(run)) for p in found)}); "
+                         "name one of them")
+    wandb = " (its W&B files can be uploaded with `wandb sync`)" if (run / "wandb").is_dir() else ""
+    raise ValueError(f"{run}: no metrics.csv: the run was logged without a CSV logger{wandb}")
+
+
+def read_metrics(path: Path) -> Curves:
+    """Every metric's logged values in order, from a Lightning ``metrics.csv`` (one row per log call, empty
+    cells for metrics not logged in it); a cell that is not a number is a ``ValueError`` naming its line."""
+    curves: Curves = {}
+    try:
+        with path.open(newline="") as f:
+            reader = csv.DictReader(f)
+            if not reader.fieldnames or "step" not in reader.fieldnames:
+                raise ValueError(f"{path}: not a Lightning metrics.csv (no 'step' column in its header)")
+            for line, row in enumerate(reader, start=2):
+                try:
+                    step = int(float(row["step"]))
+                    epoch = int(float(row["epoch"])) if row.get("epoch") else None
+                    values = {k: float(v) for k, v in row.items() if k not in ("step", "epoch") and k and v}
+                except (TypeError, ValueError):
+                    raise ValueError(f"{path}: line {line} holds a value that is not a number") from None
+                for name, value in values.items():
+                    curves.setdefault(name, []).append(Point(step, epoch, value))
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text file") from None
+    return curves
+
+
+def lower_is_better(name: str) -> bool:
+    leaf = name.rsplit("/", 1)[-1]
+    return any(word in leaf for word in ("loss", "regret", "error", "seconds"))
+
+
+def learning_curves(curves: Curves) -> Curves:
+    """The metrics worth a curve: no ``*_sem`` and no constant reference."""
+    return {name: points for name, points in sorted(curves.items())
+            if not name.endswith("_sem") and not REFERENCE.search(name)}
+
+
+def best_point(name: str, points: list[Point]) -> Point | None:
+    finite = [p for p in points if math.isfinite(p.value)]
+    if not finite:
+        return None
+    pick = min if lower_is_better(name) else max
+    return pick(finite, key=lambda p: p.value)
+
+
+def curves_table(curves: Curves) -> Table:
+    table = Table(title="Learning curves (best: lowest for losses/regrets, else highest)")
+    for head in ("metric", "points", "first", "last", "best", "best at"):
+        table.add_column(head, justify="left" if head in ("metric", "best at") else "right")
+    for name, points in learning_curves(curves).items():
+        first, last, best = points[0], points[-1], best_point(name, points)
+        table.add_row(name, str(len(points)), f"{first.value:.4g}", f"{last.value:.4g} @ {last.when()}",
+                      "" if best is None else f"{best.value:.4g}", "" if best is None else best.when())
+    return table
+
+
+def last_values(curves: Curves) -> dict[str, float]:
+    return {name: points[-1].value for name, points in curves.items()}
+
+
+def rollout_results(curves: Curves) -> tuple[dict[str, dict[str, float]], int | None]:
+    """``{val/<env>/<quality>[/<diagnostic>]: {metric: last value}}`` and the step of the last rollout."""
+    results: dict[str, dict[str, float]] = {}
+    step = None
+    for name, value in last_values(curves).items():
+        prefix, _, key = name.rpartition("/")
+        if not prefix.startswith("val/") or prefix.startswith("val/bandit/"):
+            continue
+        if key.removesuffix("_sem") in ROLLOUT_KEYS:
+            results.setdefault(prefix, {})[key] = value
+            if key == "return":
+                step = max(step or 0, curves[name][-1].step)
+    rows = {p: r for p, r in results.items() if "return" in r}
+    return dict(sorted(rows.items(), key=lambda item: _quality_order(item[0]))), step
+
+
+def _quality_order(prefix: str) -> tuple:
+    """``val/<env>/<quality>[/<diagnostic>]`` by env, then low, medium, high, then diagnostic."""
+    parts = prefix.split("/")
+    quality = QUALITIES.index(parts[2]) if len(parts) > 2 and parts[2] in QUALITIES else len(QUALITIES)
+    return parts[1], quality, prefix
+
+
+def regret_results(curves: Curves) -> dict[str, dict[str, dict[str, float]]]:
+    """``{source: {method: {metric: last value}}}`` from ``val/bandit/<source>/<method>/<metric>``."""
+    results: dict[str, dict[str, dict[str, float]]] = {}
+    for name, value in last_values(curves).items():
+        parts = name.split("/")
+        if len(parts) == 5 and parts[:2] == ["val", "bandit"] and parts[4].removesuffix("_sem") in REGRET_KEYS:
+            results.setdefault(parts[2], {}).setdefault(parts[3], {})[parts[4]] = value
+    return results
+
+
+def panels(curves: Curves) -> dict[str, Curves]:
+    """The figure's panels: curves grouped by their last name component (``train/loss`` and ``val/loss``
+    share ``loss``), the paper's metrics first, at most ``MAX_PANELS``."""
+    groups: dict[str, Curves] = {}
+    for name, points in learning_curves(curves).items():
+        groups.setdefault(name.rsplit("/", 1)[-1], {})[name] = points
+    order = sorted(groups, key=lambda g: (FIRST_PANELS.index(g) if g in FIRST_PANELS else len(FIRST_PANELS), g))
+    return {g: groups[g] for g in order[:MAX_PANELS]}
+
+
+def curves_figure(curves: Curves, path: Path, title: str) -> None:
+    """One panel per kind of metric, value vs optimizer step, written to ``path`` (PNG)."""
+    from matplotlib.figure import Figure
+
+    groups = panels(curves)
+    if not groups:
+        raise ValueError(f"{title}: no metric to draw")
+    cols = min(3, len(groups))
+    rows = math.ceil(len(groups) / cols)
+    fig = Figure(figsize=(5 * cols, 3.4 * rows), layout="constrained")
+    fig.suptitle(title, fontsize=9)
+    for i, (group, members) in enumerate(groups.items()):
+        ax = fig.add_subplot(rows, cols, i + 1)
+        for name, points in members.items():
+            line, = ax.plot([p.step for p in points], [p.value for p in points],
+                            marker="o" if len(points) < 30 else None, markersize=3,
+                            label=name.removesuffix(f"/{group}") or name)
+            behavior = curves.get(f"{name.rpartition('/')[0]}/behavior_{group}")
+            if behavior:  # the context's behavior policy, the bar an in-context learner should clear
+                ax.axhline(behavior[-1].value, color=line.get_color(), linestyle="--", linewidth=0.8)
+        ax.set_title(group + (" (dashed: behavior policy)" if group in ROLLOUT_KEYS[:3] else ""), fontsize=9)
+        ax.set_xlabel("step", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.legend(fontsize=6)
+    fig.savefig(path, dpi=110)
+
+
+def report(run: Path, figure: Path | None, console: Console) -> Path | None:
+    """Print the report of ``run`` on ``console``; write the figure to ``figure`` (None: no figure)."""
+    path = find_metrics(run)
+    curves = read_metrics(path)
+    if not curves:
+        raise ValueError(f"{path}: no metric logged yet")
+    steps = max(p.step for points in curves.values() for p in points)
+    console.print(f"run: {run}\nmetrics: {path} (last step {steps})")
+    console.print(curves_table(curves))
+    results, step = rollout_results(curves)
+    if results:
+        console.print(results_table(results, f"In-context rollouts on held-out tasks, last logged (step {step})"))
+    regrets = regret_results(curves)
+    if regrets:
+        console.print(regret_table(regrets, "Weak regret on held-out problems, last logged"))
+    if figure is not None:
+        curves_figure(curves, figure, str(run))
+        console.print(f"figure: {figure}")
+    return figure
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="icprl report", description="A run's learning curves and last held-out "
+                                     "results, from its metrics.csv; draws the curves into a PNG.")
+    parser.add_argument("run", type=Path, help="the run directory `icprl fit` printed (or a metrics.csv)")
+    parser.add_argument("--figure", type=Path, default=None,
+                        help=f"where to write the PNG (default: <run>/{FIGURE_NAME})")
+    parser.add_argument("--no-figure", action="store_true", help="print the report only")
+    args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
+    run_dir = args.run.parent if args.run.is_file() else args.run
+    figure = None if args.no_figure else (args.figure or run_dir / FIGURE_NAME)
+    console = Console()
+    if not console.is_terminal:
+        console.width = 160  # a log file or a pipe: rows unwrapped
+    try:
+        report(args.run, figure, console)
+    except (ValueError, OSError) as e:
+        sys.stderr.write(f"icprl report: error: {e}\n")
+        raise SystemExit(2) from None
+
+
+if __name__ == "__main__":
+    main()
