@@ -9,6 +9,8 @@
   so that two processes writing the same path take turns; ``staged_directory`` holds it while staging.
 * ``write_json_atomic``: a JSON file through a temporary file and ``os.replace`` (result records).
 * ``sha256`` (file checksums of the dataset manifest) and ``jsonable`` (numpy values to JSON types).
+* ``StorageError`` / ``storage_error``: an ``OSError`` as one line naming the path; a full disk (``ENOSPC``,
+  ``EDQUOT``) says "no space left on <path>".
 """
 
 from __future__ import annotations
@@ -51,6 +53,34 @@ def jsonable(x: Any) -> Any:
     if isinstance(x, np.generic):
         return x.item()
     return x
+
+
+# ---- I/O errors as one line naming the path -----------------------------------------------------------------
+
+_DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+
+
+class StorageError(OSError):
+    """An ``OSError`` whose message names the path and what happened (``errno`` kept for callers)."""
+
+    def __str__(self) -> str:  # not "[Errno 28] ...": the message already says it
+        return str(self.strerror)
+
+
+def storage_error(error: OSError, path: str | Path, doing: str, after: str = "") -> StorageError:
+    """``error`` (raised while ``doing`` something with ``path``) as one line naming ``path``.
+
+    A full disk is "no space left on <path>" (the device holding it, whichever file of it failed); any
+    other error keeps its reason (``strerror``) and the file it names. ``after`` says what state that
+    leaves (e.g. "nothing was written").
+    """
+    tail = f"; {after}" if after else ""
+    if error.errno in _DISK_FULL:
+        return StorageError(error.errno, f"no space left on {path} (while {doing}){tail}; free some space or "
+                                         "choose another path")
+    reason = error.strerror or str(error) or type(error).__name__
+    where = f" ({error.filename})" if error.filename and str(error.filename) != str(path) else ""
+    return StorageError(error.errno, f"{doing} {path} failed: {reason}{where}{tail}")
 
 
 # ---- is this ours? ---------------------------------------------------------------------------------------

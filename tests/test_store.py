@@ -419,3 +419,69 @@ def test_malformed_manifest_entries_are_dataset_errors(tmp_path):
         (path / "manifest.json").write_text(json.dumps({**manifest, "files": files}))
         with pytest.raises(DatasetError, match="corrupt"):
             load_dataset(path, CONFIG)
+
+
+def test_manifest_entries_outside_the_dataset_or_of_the_wrong_type_are_refused(tmp_path):
+    path = write_dataset(tmp_path / "d", _splits(), CONFIG)
+    manifest = json.loads((path / "manifest.json").read_text())
+    entry = manifest["files"]["train/x.npy"]
+    for files in ({"/x.npy": entry}, {"./x.npy": entry}, {"train/": entry}, {"train/x.npy": {**entry, "bytes": "1"}},
+                  {"train/x.npy": {**entry, "bytes": True}}, {"train/x.npy": {**entry, "sha256": None}}):
+        (path / "manifest.json").write_text(json.dumps({**manifest, "files": files}))
+        with pytest.raises(DatasetError, match="corrupt .*bad file entry"):
+            load_dataset(path, CONFIG)
+    for key in ("config", "info", "sizes", "files"):
+        (path / "manifest.json").write_text(json.dumps({**manifest, key: [1]}))
+        with pytest.raises(DatasetError, match=f"its '{key}' is a JSON list, not an object"):
+            load_dataset(path)
+
+
+def test_a_file_whose_header_disagrees_with_its_manifest_entry_is_refused(tmp_path):
+    path = write_dataset(tmp_path / "d", _splits(), CONFIG)
+    np.save(path / "train" / "x.npy", np.zeros((3, 10), np.float32))
+    with pytest.raises(DatasetError, match=r"train/x\.npy holds shape \[3, 10\], dtype float32; the manifest says "
+                                           r"shape \[10, 3\]"):
+        load_dataset(path, CONFIG, verify=False)  # same size, no checksum: only the header comparison sees it
+
+
+def test_an_unreadable_manifest_or_file_is_a_dataset_error_naming_it(tmp_path):
+    path = write_dataset(tmp_path / "d", _splits(), CONFIG)
+    (path / "train" / "y.npy").unlink()
+    (path / "train" / "y.npy").mkdir()
+    with pytest.raises(DatasetError, match=r"file train/y\.npy is missing"):
+        load_dataset(path, CONFIG)
+    (path / "manifest.json").unlink()
+    (path / "manifest.json").mkdir()
+    with pytest.raises(DatasetError, match=r"cannot read manifest\.json"):
+        load_dataset(path, CONFIG)
+
+
+def test_a_full_disk_is_one_line_naming_the_path_and_cleans_up(tmp_path, monkeypatch):
+    import errno
+
+    from icprl_lightning.data import store
+    from icprl_lightning.io import StorageError
+
+    real_save = np.save
+
+    def save(file, array, *args, **kwargs):
+        if Path(file).name == "y.npy":
+            Path(file).write_bytes(b"half")
+            raise OSError(errno.ENOSPC, "No space left on device", str(file))
+        real_save(file, array, *args, **kwargs)
+
+    monkeypatch.setattr(store.np, "save", save)
+    with pytest.raises(StorageError, match=rf"^no space left on {tmp_path / 'd'} \(while writing the dataset\); "
+                                           "the partial copy was removed, nothing was written") as err:
+        write_dataset(tmp_path / "d", _splits(), CONFIG)
+    assert isinstance(err.value, OSError) and err.value.errno == errno.ENOSPC and "\n" not in str(err.value)
+    assert list(tmp_path.iterdir()) == []
+
+    def denied(file, array, *args, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", str(file))
+
+    monkeypatch.setattr(store.np, "save", denied)
+    with pytest.raises(StorageError, match=rf"writing the dataset {tmp_path / 'd'} failed: Permission denied "
+                                           r"\(.*x\.npy\)"):
+        write_dataset(tmp_path / "d", _splits(), CONFIG)
+    assert list(tmp_path.iterdir()) == []

@@ -66,6 +66,7 @@ from torch.utils.data import BatchSampler, DataLoader, DistributedSampler, Rando
 
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.data.batches import LABEL_FIELDS, ContextBatches
+from icprl_lightning.data.schema import DatasetSchema, check_dataset
 from icprl_lightning.data.settings.bandit_duels import BanditDuels
 from icprl_lightning.data.settings.base import MDPSetting, Setting
 from icprl_lightning.data.store import (
@@ -286,19 +287,18 @@ class PreferenceDataModule(L.LightningDataModule):
         dataset.require(self.required_fields(), self.regenerate_hint)
         return dataset
 
-    def setup(self, stage: str | None = None) -> None:
-        """Load the dataset and check its context fields' values once (``contexts.check_stored_splits``:
-        finite floats, labels in {0, 1}, action indices in range, T ≥ 1), a ``DatasetError`` naming the
-        split, field and path — before any batch is served."""
-        from icprl_lightning.contexts import check_stored_splits
-        from icprl_lightning.data.store import DatasetError
+    def schema(self) -> DatasetSchema:
+        """What the model built from this DataModule's sizes expects of every split (``data/schema.py``)."""
+        return DatasetSchema(kind=self.context_kind, actions=self.action_spec, state_dim=self.state_dim,
+                             max_steps=self.context_length)
 
+    def setup(self, stage: str | None = None) -> None:
+        """Load the dataset and check it as a whole once (``schema.check_dataset``: every split's dtypes, row
+        and step counts, state and action sizes, labels, action indices, finite bounded values), one
+        ``InvalidDatasetError`` naming the split, field and path — before any batch is served."""
         data = self.load()
         if getattr(self, "_values_checked", None) is not data:  # once per loaded dataset, not per stage
-            try:
-                check_stored_splits(data.splits, self.action_spec, where=str(data.path))
-            except ValueError as e:
-                raise DatasetError(f"{e}. To fix: {self.regenerate_hint}.") from None
+            check_dataset(data, self.schema(), self.regenerate_hint)
             self._values_checked = data
 
     # ---- fold settings in checkpoints (see the module docstring) ---------------------------------------

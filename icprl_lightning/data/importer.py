@@ -5,13 +5,22 @@
 
 ``SOURCE`` is an ``.npz`` file or a directory of ``<field>.npy`` files, named as the context's fields
 (``contexts.py``; the table is in ``docs/recorded_data.md``). Every field is checked before anything is
-written — presence, shape, dtype, label values, action range, NaN/inf — and a bad one is a
-``ValueError`` naming the field and what is expected. The arrays are converted to the store's compact
+written — presence, shape, dtype, label values, action range, NaN/inf, magnitude — and a bad one is a
+``ValueError`` naming the field and what is expected. States and continuous actions beyond
+``|x| <= 1e6`` (``schema.MAX_MAGNITUDE``) are refused, not standardized: rescale them first (why: the
+``data/schema.py`` docstring).
+
+The source is untrusted: ``data/source_files.py`` reads it, checking every ``.npy`` header's declared
+shape and dtype against the file's size and a size limit (``--max-source-bytes``) before allocating
+anything. A truncated or corrupt file, an unreadable one or a full disk while writing is one line naming
+the file (and member). The arrays are converted to the store's compact
 dtypes (float32 states and continuous actions, int8/int16/int32 action indices, uint8 labels), rows are
 reordered task-major (stable, so each task keeps its recorded order), the tasks are split into train and
 val with a seeded permutation, and the result is written by ``store.write_dataset`` (one ``.npy`` per
-field and split, ``manifest.json`` with checksums, staged and renamed). ``RecordedPreferenceDataModule``
-(``data/recorded.py``) trains any method on it.
+field and split, ``manifest.json`` with checksums, staged and renamed). The field checks here are the
+loader's (``data/schema.py``) applied to the source, so whatever imports also loads
+(``tests/test_import_fuzz.py``). ``RecordedPreferenceDataModule`` (``data/recorded.py``) trains any
+method on it.
 """
 
 from __future__ import annotations
@@ -26,7 +35,9 @@ from typing import Any
 import numpy as np
 
 from icprl_lightning.contexts import ActionSpec
-from icprl_lightning.data.store import check_replaceable_dataset, write_dataset
+from icprl_lightning.data.schema import MAX_MAGNITUDE, magnitude_problem
+from icprl_lightning.data.source_files import MAX_SOURCE_BYTES, read_source
+from icprl_lightning.data.store import DatasetError, check_replaceable_dataset, write_dataset
 
 FORMAT = "icprl_recorded"
 FORMAT_VERSION = 1
@@ -78,6 +89,9 @@ def _to_float32(name: str, x: np.ndarray) -> np.ndarray:
     with np.errstate(over="ignore"):  # reported below, by field
         out = x.astype(np.float32)
     _check_finite(name, out, " after conversion to float32 (values beyond its range)")
+    problem = magnitude_problem(out, MAX_MAGNITUDE)
+    if problem is not None:
+        raise ValueError(f"field {name!r} {problem}")
     return out
 
 
@@ -175,29 +189,6 @@ def check_arrays(arrays: Mapping[str, np.ndarray], kind: str, actions: ActionSpe
     return out
 
 
-def read_source(source: str | Path) -> dict[str, np.ndarray]:
-    """The arrays of an ``.npz`` file or of a directory's ``*.npy`` files, loaded without unpickling."""
-    path = Path(source)
-    if not path.exists():
-        raise FileNotFoundError(f"no such file or directory: {path}")
-    if path.is_dir():
-        files = {p.stem: p for p in sorted(path.glob("*.npy"))}
-        if not files:
-            raise ValueError(f"{path} holds no .npy files; expected one <field>.npy per field")
-    elif path.suffix == ".npz":
-        files = {}
-    else:
-        raise ValueError(f"{path} is neither an .npz file nor a directory of .npy files")
-    try:
-        if files:
-            return {name: np.load(p, allow_pickle=False) for name, p in files.items()}
-        with np.load(path, allow_pickle=False) as npz:
-            return {name: npz[name] for name in npz.files}
-    except ValueError as e:  # object arrays (which would need pickle) and unreadable files
-        raise ValueError(f"{path}: cannot read the arrays without unpickling ({e}); save plain numeric "
-                         "arrays (np.savez / np.save)") from None
-
-
 def split_rows(task: np.ndarray | None, n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(train rows, val rows), task-major and stable, with a seeded share of the tasks held out for val.
 
@@ -262,11 +253,14 @@ def _guard_out_dir(out: Path, source: Path | None, overwrite: bool) -> None:
 
 def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: str | Path,
                        kind: str = "step_preference", n_actions: int | None = None, action_dim: int | None = None,
-                       val_fraction: float = 0.1, seed: int = 0, overwrite: bool = False) -> ImportSummary:
+                       val_fraction: float = 0.1, seed: int = 0, overwrite: bool = False,
+                       max_source_bytes: int = MAX_SOURCE_BYTES) -> ImportSummary:
     """Check ``source`` (a file, directory or dict of arrays), convert it and write it to ``out_dir``.
 
     Exactly one of ``n_actions`` (discrete actions, indices in [0, n_actions)) and ``action_dim``
-    (continuous action vectors) is given. Raises ``ValueError`` naming the first bad field.
+    (continuous action vectors) is given. Raises ``ValueError`` naming the first bad field (or file),
+    ``OSError`` (``io.StorageError``) naming the path when reading or writing fails (a full disk: "no
+    space left on <out_dir>", with nothing left behind).
     """
     if (n_actions is None) == (action_dim is None):
         raise ValueError("pass exactly one of n_actions (discrete actions) and action_dim (continuous actions)")
@@ -277,7 +271,8 @@ def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: s
     out = Path(out_dir)
     source_path = None if isinstance(source, Mapping) else Path(source)
     _guard_out_dir(out, source_path, overwrite)
-    arrays = check_arrays(source if isinstance(source, Mapping) else read_source(source), kind, actions)
+    arrays = check_arrays(source if isinstance(source, Mapping) else read_source(source, max_source_bytes), kind,
+                          actions)
     reference = next(iter(KINDS[kind]))
     n, t, s = arrays[reference].shape
     task = arrays.get(TASK_FIELD)
@@ -313,12 +308,14 @@ def main(argv: list[str] | None = None) -> ImportSummary:
     parser.add_argument("--val-fraction", type=float, default=0.1, help="share of the tasks held out for val")
     parser.add_argument("--seed", type=int, default=0, help="seeds the train/val task split")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing icprl dataset at --out")
+    parser.add_argument("--max-source-bytes", type=int, default=MAX_SOURCE_BYTES,
+                        help="refuse sources whose arrays declare more bytes than this (default: 8 GiB)")
     args = parser.parse_args(argv)
     try:
         summary = import_preferences(args.source, args.out, args.kind, n_actions=args.n_actions,
                                      action_dim=args.action_dim, val_fraction=args.val_fraction, seed=args.seed,
-                                     overwrite=args.overwrite)
-    except (ValueError, FileExistsError, FileNotFoundError) as e:
+                                     overwrite=args.overwrite, max_source_bytes=args.max_source_bytes)
+    except (ValueError, OSError, DatasetError) as e:  # each one line naming the field, file or path
         parser.exit(2, f"icprl import: error: {e}\n")
     print(summary)
     return summary

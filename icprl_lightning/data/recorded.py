@@ -14,6 +14,12 @@ Batches are whole-batch fancy indices of the memory-mapped arrays (``ContextBatc
   number of rows, so the other row is drawn among that task's rows; every task needs at least two.
 * ``query_labels=True`` serves ``query_states`` / ``optimal_actions`` (DPT/DP²T), if they were imported.
 
+The dataset is checked as a whole when the DataModule is built: the manifest's config (each key's type
+and range), the fields each split must hold, and every split's arrays against the schema that config
+declares (``data/schema.py``: dtypes, row and step counts, sizes, labels, action indices, finite values
+within ``|x| <= 1e6``), one ``DatasetError`` naming the split and field before training starts. With
+``verify_checksums`` the files' SHA-256 are checked in ``setup``.
+
 There is no simulator behind recorded data, so ``evaluation_suites()`` is empty: validation reports the
 methods' losses on the held-out tasks of the ``val`` split, and deployment is through ``load_agent``.
 """
@@ -31,12 +37,17 @@ from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, S
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.data.batches import ContextBatches, to_tensor
 from icprl_lightning.data.importer import FORMAT, KINDS, QUERY_FIELDS, TASK_FIELD
+from icprl_lightning.data.schema import DatasetSchema, check_dataset
 from icprl_lightning.data.store import DatasetError, StoredDataset, load_dataset
 
 if TYPE_CHECKING:  # a type only: recorded data never builds a suite, so it needs no evaluation code
     from icprl_lightning.data.suites import EvalSuite
 
 SPLITS = ("train", "val")
+# the manifest config keys this DataModule reads, with their JSON types (bool is not an int here)
+CONFIG_TYPES = {"discrete": bool, "action_size": int, "state_dim": int, "context_length": int,
+                "has_task_index": bool, "has_query_labels": bool}
+MINIMUM = {"action_size": 1, "state_dim": 0, "context_length": 1}
 
 
 class RecordedBatches(Dataset):
@@ -105,14 +116,15 @@ class RecordedPreferenceDataModule(L.LightningDataModule):
         self.verify_checksums = verify_checksums
         self.dataset: StoredDataset = load_dataset(self.path, verify=False, regenerate_hint=self.hint)
         self._verified = not verify_checksums
-        self.config = self.dataset.manifest.get("config", {})
-        if self.config.get("format") != FORMAT or self.config.get("kind") not in KINDS:
-            raise DatasetError(f"{self.path} is not a recorded preference dataset (its manifest config has format "
-                               f"{self.config.get('format')!r}, kind {self.config.get('kind')!r}). To fix: "
-                               f"{self.hint}")
+        self.config = self.dataset.manifest["config"]
+        self._check_config()
         missing = [s for s in SPLITS if s not in self.dataset.splits]
         if missing:
             raise DatasetError(f"{self.path} has no {missing} split. To fix: {self.hint}")
+        fields = [*self.batch_fields(), *([TASK_FIELD] if self.config["has_task_index"] else []),
+                  *(QUERY_FIELDS if self.config["has_query_labels"] else [])]
+        self.dataset.require(dict.fromkeys(SPLITS, fields), self.hint)
+        check_dataset(self.dataset, self.schema(), self.hint)
         if query_labels and not self.config.get("has_query_labels"):
             raise ValueError(f"query_labels=True serves {list(QUERY_FIELDS)}, but {self.path} was imported "
                              "without them; add both fields to the source and re-import, or pick a method that "
@@ -122,6 +134,24 @@ class RecordedPreferenceDataModule(L.LightningDataModule):
                              f"without field {TASK_FIELD!r}; add it to the source and re-import, or set "
                              "data.init_args.pairs false (ICPO: model.init_args.pair_source context)")
         self._batches = {split: self._make_batches(split) for split in SPLITS}  # checks rows per task now
+
+    def _check_config(self) -> None:
+        """The manifest config this DataModule reads: one ``DatasetError`` naming a missing or mistyped key."""
+        kind = self.config.get("kind")
+        if self.config.get("format") != FORMAT or not isinstance(kind, str) or kind not in KINDS:
+            raise DatasetError(f"{self.path} is not a recorded preference dataset (its manifest config has format "
+                               f"{self.config.get('format')!r}, kind {self.config.get('kind')!r}). To fix: "
+                               f"{self.hint}")
+        for key, expected in CONFIG_TYPES.items():
+            value = self.config.get(key)
+            if type(value) is not expected or value < MINIMUM.get(key, value):
+                low = f" >= {MINIMUM[key]}" if key in MINIMUM else ""
+                raise DatasetError(f"{self.path}: manifest config {key!r} is {value!r}; expected "
+                                   f"{expected.__name__}{low} (the manifest is corrupt). To fix: {self.hint}")
+
+    def schema(self) -> DatasetSchema:
+        """What the model linked from this data's sizes expects of every split (``data/schema.py``)."""
+        return DatasetSchema(self.context_kind, self.action_spec, self.state_dim, self.context_length)
 
     @property
     def path(self) -> Path:
@@ -165,7 +195,10 @@ class RecordedPreferenceDataModule(L.LightningDataModule):
             raise ValueError(f"the model conditions on {kind} contexts but {self.path} holds {self.context_kind} "
                              "data; pick a method (or model.init_args.context_kind) for that kind")
         if not self._verified:  # re-open with every checksum checked, once
-            self.dataset = load_dataset(self.path, verify=True, regenerate_hint=self.hint)
+            dataset = load_dataset(self.path, verify=True, regenerate_hint=self.hint)
+            if dataset.manifest != self.dataset.manifest:  # replaced since __init__ checked it: refuse
+                raise DatasetError(f"{self.path} changed on disk since this DataModule was built; build it again")
+            self.dataset = dataset
             self._batches = {split: self._make_batches(split) for split in SPLITS}
             self._verified = True
 

@@ -9,7 +9,14 @@ A dataset is written into a hidden temporary sibling directory and renamed into 
 array and the manifest are on disk, so an interrupted generation leaves nothing that looks like a
 dataset. Loading checks the schema version, the generator config, and each file's size and SHA-256, and
 every failure says what is wrong and how to regenerate; a field or split the manifest does not list is a
-``MissingFieldError`` naming it and the path.
+``MissingFieldError`` naming it and the path. A manifest that is not what this module writes (wrong types,
+paths outside the dataset, a file whose ``.npy`` header disagrees with its entry) is a ``DatasetError``;
+what the arrays hold is checked as a whole by ``data/schema.py`` (``InvalidDatasetError``), by the
+DataModules, before training.
+
+A failure while writing (a full disk: "no space left on <path>") is a ``StorageError`` (an ``OSError``)
+naming the path; the staged copy is removed, so nothing half-written is left and an existing dataset at
+the path is untouched.
 
 Only a dataset of this project is ever replaced (``overwrite=True``): a directory whose ``manifest.json``
 is readable and has this ``SCHEMA_VERSION`` (``check_replaceable_dataset``, the one check the store, the
@@ -28,15 +35,22 @@ from typing import Any
 
 import numpy as np
 
-from icprl_lightning.io import NotReplaceableError, check_replaceable, path_lock, sha256, staged_directory
+from icprl_lightning.io import (
+    NotReplaceableError,
+    check_replaceable,
+    path_lock,
+    sha256,
+    staged_directory,
+    storage_error,
+)
 
 SCHEMA_VERSION = 1
 MANIFEST = "manifest.json"
 WHAT = "icprl dataset"
 
-__all__ = ["MANIFEST", "SCHEMA_VERSION", "DatasetError", "DatasetNotFoundError", "MissingFieldError",
-           "NotReplaceableError", "Split", "StoredDataset", "check_replaceable_dataset", "dataset_lock",
-           "load_dataset", "write_dataset"]
+__all__ = ["MANIFEST", "SCHEMA_VERSION", "DatasetError", "DatasetNotFoundError", "InvalidDatasetError",
+           "MissingFieldError", "NotReplaceableError", "Split", "StoredDataset", "check_replaceable_dataset",
+           "dataset_lock", "load_dataset", "write_dataset"]
 
 
 class DatasetError(RuntimeError):
@@ -45,6 +59,10 @@ class DatasetError(RuntimeError):
 
 class DatasetNotFoundError(DatasetError):
     pass
+
+
+class InvalidDatasetError(DatasetError, ValueError):
+    """A dataset's arrays break its schema (dtype, rows, steps, values; ``data/schema.py``); a ``ValueError`` too."""
 
 
 class MissingFieldError(DatasetError, KeyError):
@@ -109,6 +127,18 @@ def write_dataset(path: str | Path, splits: Mapping[str, Mapping[str, np.ndarray
     if (path.exists() or path.is_symlink()) and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
     check_replaceable_dataset(path)
+    try:
+        _write_staged(path, splits, config, info, overwrite)
+    except FileExistsError:  # refusals of staged_directory, already one line naming the path
+        raise
+    except OSError as e:  # staged_directory has removed the staged copy; the path holds what it held
+        kept = "the dataset already there is unchanged" if path.exists() else "nothing was written"
+        raise storage_error(e, path, "writing the dataset", f"the partial copy was removed, {kept}") from None
+    return path
+
+
+def _write_staged(path: Path, splits: Mapping[str, Mapping[str, np.ndarray]], config: Mapping[str, Any],
+                  info: Mapping[str, Any] | None, overwrite: bool) -> None:
     with staged_directory(path, marker=MANIFEST, schema_version=SCHEMA_VERSION, what=WHAT,
                           overwrite=overwrite) as tmp:
         files: dict[str, dict[str, Any]] = {}
@@ -129,7 +159,6 @@ def write_dataset(path: str | Path, splits: Mapping[str, Mapping[str, np.ndarray
             json.dump(manifest, f, indent=2, sort_keys=True)
             f.flush()
             os.fsync(f.fileno())
-    return path
 
 
 def _config_json(x: Any) -> Any:
@@ -145,7 +174,11 @@ def _config_diff(found: Mapping[str, Any], expected: Mapping[str, Any]) -> list[
 
 def load_dataset(path: str | Path, expected_config: Mapping[str, Any] | None = None, verify: bool = True,
                  regenerate_hint: str = "delete the directory and generate it again") -> StoredDataset:
-    """Open a dataset with memory-mapped arrays, after checking it is whole and made by this config."""
+    """Open a dataset with memory-mapped arrays, after checking it is whole and made by this config.
+
+    Every problem (a missing or unreadable file, a manifest of the wrong shape, a size, checksum, shape or
+    dtype that disagrees with the manifest) is one ``DatasetError`` naming the path and the file.
+    """
     path = Path(path)
     fix = f"To fix: {regenerate_hint}."
     if not path.is_dir():
@@ -154,29 +187,51 @@ def load_dataset(path: str | Path, expected_config: Mapping[str, Any] | None = N
         manifest = json.loads((path / MANIFEST).read_text())
     except FileNotFoundError:
         raise DatasetError(f"Dataset {path} has no {MANIFEST}: it is incomplete or not a dataset. {fix}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt ({e}). {fix}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
+        raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt ({_one_line(e)}). {fix}") from None
+    except OSError as e:
+        raise DatasetError(f"Dataset {path}: cannot read {MANIFEST} ({e.strerror or e}). {fix}") from None
     if not isinstance(manifest, dict):
         raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt (a JSON {type(manifest).__name__}, not an "
                            f"object). {fix}")
     version = manifest.get("schema_version")
     if version != SCHEMA_VERSION:
-        raise DatasetError(f"Dataset {path} has schema version {version}, this code reads {SCHEMA_VERSION}. {fix}")
+        raise DatasetError(f"Dataset {path} has schema version {version!r}, this code reads {SCHEMA_VERSION}. {fix}")
+    for key in ("config", "info", "sizes", "files"):
+        if not isinstance(manifest.setdefault(key, {}), dict):
+            raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt (its {key!r} is a JSON "
+                               f"{type(manifest[key]).__name__}, not an object). {fix}")
     if expected_config is not None:
-        diff = _config_diff(manifest.get("config", {}), _config_json(dict(expected_config)))
+        diff = _config_diff(manifest["config"], _config_json(dict(expected_config)))
         if diff:
             raise DatasetError(f"Dataset {path} was generated with a different config:\n  "
                                + "\n  ".join(diff) + f"\n{fix}")
     splits: dict[str, dict[str, np.ndarray]] = {}
-    files = manifest.get("files", {})
-    if not isinstance(files, dict):
-        raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt (its \"files\" is not an object). {fix}")
-    for rel, meta in files.items():
-        if (rel.count("/") != 1 or not rel.endswith(".npy") or ".." in rel.split("/")
-                or not isinstance(meta, dict) or not {"bytes", "sha256"} <= set(meta)):
+    for rel, meta in manifest["files"].items():
+        parts = rel.split("/")
+        if (len(parts) != 2 or not rel.endswith(".npy") or not all(parts) or set(parts) & {".", ".."}
+                or "\\" in rel or not isinstance(meta, dict) or not _is_count(meta.get("bytes"))
+                or not isinstance(meta.get("sha256"), str)):
             raise DatasetError(f"Dataset {path}: {MANIFEST} is corrupt (bad file entry {rel!r}: {meta!r}; "
                                f"expected \"<split>/<field>.npy\" with bytes and sha256). {fix}")
-        file = path / rel
+        array = _open_array(path, rel, meta, verify, fix)
+        split, name = parts
+        splits.setdefault(split, Split(path, split))[name.removesuffix(".npy")] = array
+    return StoredDataset(path=path, manifest=manifest, splits=splits)
+
+
+def _is_count(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool) and x >= 0
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split())[:300] or type(e).__name__
+
+
+def _open_array(path: Path, rel: str, meta: dict[str, Any], verify: bool, fix: str) -> np.ndarray:
+    """The memory map of one listed file, after its size, checksum (``verify``), shape and dtype are checked."""
+    file = path / rel
+    try:
         if not file.is_file():
             raise DatasetError(f"Dataset {path}: file {rel} is missing. {fix}")
         size = file.stat().st_size
@@ -185,10 +240,17 @@ def load_dataset(path: str | Path, expected_config: Mapping[str, Any] | None = N
                                f"(truncated or overwritten). {fix}")
         if verify and sha256(file) != meta["sha256"]:
             raise DatasetError(f"Dataset {path}: {rel} fails its SHA-256 checksum (corrupt). {fix}")
-        try:
-            array = np.load(file, mmap_mode="r")
-        except ValueError as e:
-            raise DatasetError(f"Dataset {path}: {rel} is not a readable .npy file ({e}). {fix}") from None
-        split, name = rel.split("/", 1)
-        splits.setdefault(split, Split(path, split))[name.removesuffix(".npy")] = array
-    return StoredDataset(path=path, manifest=manifest, splits=splits)
+        array = np.load(file, mmap_mode="r", allow_pickle=False)
+    except OSError as e:
+        raise DatasetError(f"Dataset {path}: cannot read {rel} ({e.strerror or _one_line(e)}). {fix}") from None
+    except (ValueError, EOFError) as e:  # a header numpy cannot parse, object arrays, more data declared than held
+        raise DatasetError(f"Dataset {path}: {rel} is not a readable .npy file ({_one_line(e)}). {fix}") from None
+    if not isinstance(array, np.ndarray):  # np.load opened a zip archive (an .npz) as a mapping
+        array.close()
+        raise DatasetError(f"Dataset {path}: {rel} is not a .npy array file. {fix}")
+    declared = (meta.get("shape"), meta.get("dtype"))
+    found = (list(array.shape), str(array.dtype))
+    if declared[0] is not None and declared[0] != found[0] or declared[1] is not None and declared[1] != found[1]:
+        raise DatasetError(f"Dataset {path}: {rel} holds shape {found[0]}, dtype {found[1]}; the manifest says "
+                           f"shape {declared[0]}, dtype {declared[1]} (overwritten). {fix}")
+    return array
