@@ -30,8 +30,8 @@ meant is a ``ValueError`` naming the field, the expected shape/dtype/range and w
 
 Non-tensor inputs: a ``numpy.ndarray`` of a numeric dtype is converted (copied) and then follows the
 same rules; anything else (lists, scalars, None, object arrays) is refused — a nested list has no
-definite dtype. ``check_stored_splits`` applies the same value rules to a dataset's memory-mapped
-arrays, once, when a DataModule loads them.
+definite dtype. ``data/schema.py`` applies the same value rules (and dtypes, row and step counts,
+magnitudes) to a dataset's memory-mapped arrays, once, when a DataModule loads them.
 """
 
 from __future__ import annotations
@@ -285,57 +285,3 @@ def context_from_batch(kind: str, batch: dict[str, Tensor], prefix: str = ""):
     cls = CONTEXT_TYPES[kind]
     return cls(**{f.name: batch[prefix + f.name] for f in fields(cls)
                   if f.default is MISSING or prefix + f.name in batch})
-
-
-# ---- stored datasets: the same value rules over memory-mapped arrays, by field name ----------------
-LABEL_NAMES = ("preferred",)
-ACTION_NAMES = ("actions", "alt_actions", "actions_a", "actions_b", "behavior_actions", "optimal_actions",
-                "next_actions", "next_alt_actions")
-STEP_NAMES = ("states", "states_a", "states_b", "behavior_states", "next_states")  # [N, T, S]: T >= 1
-_CHUNK_VALUES = 1 << 22  # values per vectorized check: bounds the temporary memory on large datasets
-
-
-def _row_chunks(x: np.ndarray):
-    per_row = int(np.prod(x.shape[1:], dtype=np.int64)) if x.ndim > 1 else 1
-    step = max(1, _CHUNK_VALUES // max(per_row, 1))
-    for lo in range(0, len(x), step):
-        yield np.asarray(x[lo:lo + step])
-
-
-def _stored_problem(name: str, x: np.ndarray, spec: ActionSpec) -> str | None:
-    """What is wrong with one stored field (None if nothing): finite floats, {0, 1} labels, index range, T ≥ 1."""
-    if name in STEP_NAMES and x.ndim >= 2 and x.shape[1] == 0:
-        return f"holds empty contexts (T = 0, shape {list(x.shape)}); every context needs at least one step"
-    kind = x.dtype.kind
-    if kind not in "biuf":
-        return f"has dtype {x.dtype}; expected a numeric array"
-    discrete_action = name in ACTION_NAMES and spec.discrete
-    if discrete_action and kind not in "iu":
-        return f"has dtype {x.dtype}; discrete actions must be integer indices in [0, {spec.size})"
-    for chunk in _row_chunks(x):
-        if kind == "f" and not np.isfinite(chunk).all():
-            return (f"holds {int(np.isnan(chunk).sum())} NaN and {int(np.isinf(chunk).sum())} inf values in one "
-                    f"block of rows; every value must be finite")
-        if name in LABEL_NAMES:
-            bad = (chunk != 0) & (chunk != 1)
-            if bad.any():
-                found = np.unique(chunk[bad])[:5].tolist()
-                return f"must hold only 0 or 1 (1 = the first of the pair won); found {found}"
-        if discrete_action and chunk.size and (chunk.min() < 0 or chunk.max() >= spec.size):
-            bad = (chunk < 0) | (chunk >= spec.size)
-            return f"holds action indices outside [0, {spec.size}): found {np.unique(chunk[bad])[:5].tolist()}"
-    return None
-
-
-def check_stored_splits(splits: dict[str, dict[str, np.ndarray]], action_spec: ActionSpec, where: str) -> None:
-    """Check every split's context fields once (vectorized, in row blocks); ``ValueError`` names split, field, path.
-
-    Every floating array must be finite; ``preferred`` in {0, 1}; discrete action fields integer indices in
-    ``[0, n)``; state fields at least one step long. Fields are recognized by name (``ACTION_NAMES``, ...).
-    """
-    for split, arrays in splits.items():
-        for name, x in arrays.items():
-            problem = _stored_problem(name, x, action_spec)
-            if problem is not None:
-                raise ValueError(f"Dataset {where}: split {split!r}, field {name!r} ({split}/{name}.npy, shape "
-                                 f"{list(x.shape)}, dtype {x.dtype}) {problem}")

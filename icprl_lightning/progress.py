@@ -75,7 +75,8 @@ class Progress:
         every_seconds: a plain line at least this often while work advances (None: ``EVERY_SECONDS``).
         min_seconds: no two plain lines closer than this; also the shortest loop worth a last line (None:
             ``MIN_SECONDS``).
-        stream: where plain lines go (default stdout, read when the tracker is made).
+        stream: where plain lines go (default stderr, read when the tracker is made: progress is not output,
+            so a command's stdout, e.g. ``icprl evaluate``'s tables, stays clean to pipe).
         clock: seconds, monotonic (tests pass a fake one).
     """
 
@@ -92,7 +93,7 @@ class Progress:
         self.every_percent = every_percent
         self.every_seconds = EVERY_SECONDS if every_seconds is None else every_seconds
         self.min_seconds = MIN_SECONDS if min_seconds is None else min_seconds
-        self.stream = sys.stdout if stream is None else stream
+        self.stream = sys.stderr if stream is None else stream
         self.clock = clock
         self.enabled = enabled
         self.interactive = is_terminal(self.stream) if interactive is None else interactive

@@ -259,10 +259,10 @@ def test_setup_accepts_valid_data_once(tmp_path, monkeypatch):
     dm = darkroom_data(data_dir=str(tmp_path / "ds"), progress=False, n_train_tasks=2, n_test_tasks=2)
     write_dataset(dm.path, {"train": _arrays(), "val": _arrays()}, dm.generator_config())
     dm.setup("fit")
-    import icprl_lightning.contexts as contexts
+    import icprl_lightning.data.datamodule as datamodule
 
     calls = []
-    monkeypatch.setattr(contexts, "check_stored_splits", lambda *a, **k: calls.append(a))
+    monkeypatch.setattr(datamodule, "check_dataset", lambda *a, **k: calls.append(a))
     dm.setup("validate")  # the same loaded dataset: not checked again
     assert calls == []
 

@@ -1,8 +1,8 @@
-"""Progress when stdout is not a terminal: plain lines from ``progress.Progress`` (data generation, rollouts)
+"""Progress when stderr is not a terminal: plain lines from ``progress.Progress`` (data generation, rollouts)
 and from the ``TrainingProgress`` callback (within an epoch without a bar, and one summary per epoch).
 
 The trackers run on a fake clock here, so the lines they print are exact; the generation test runs the
-real recipe with the floor between lines lowered, and reads stdout as a log would.
+real recipe with the floor between lines lowered, and reads stderr as a log would.
 """
 
 from __future__ import annotations
@@ -101,7 +101,7 @@ def test_data_generation_prints_plain_lines_into_a_log(tmp_path, monkeypatch, ca
                        eval_contexts_per_task=1, calibration_episodes=2, n_train_tasks=10, n_test_tasks=5,
                        progress=True)
     dm.prepare_data()
-    out = capsys.readouterr().out  # pytest's captured stdout is not a terminal, as a log is not
+    out = capsys.readouterr().err  # progress goes to stderr; pytest's capture is not a terminal, as a log is not
     for split in ("train contexts", "val contexts", "eval low", "eval high"):
         assert re.search(rf"^{split}: 10% \(10/100 steps\) .* steps/s, elapsed \d+s, ETA \d+s$", out, re.M), out
         assert re.search(rf"^{split}: 100% \(100/100 steps\)", out, re.M), out
@@ -115,10 +115,10 @@ def test_dts_duels_count_their_prefixes_in_a_log(monkeypatch, capsys):
     context = StepPreferenceContext(torch.zeros(4, 20, 0), first, (first + 1) % 5,
                                     torch.randint(0, 2, (4, 20), generator=g).float())
     dts_duels(context, 5, np.random.default_rng(0))
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err
     assert re.search(r"^DTS duels: 100% \(20/20 prefixes\)", out, re.M), out
     dts_duels(context, 5, np.random.default_rng(0), progress=False)
-    assert capsys.readouterr().out == ""
+    assert capsys.readouterr().err == ""
 
 
 # ---- the training callback, hook by hook on a stand-in trainer ---------------------------------------------

@@ -36,9 +36,10 @@ TINY = ["--data.init_args.setting.init_args.trajectories_per_task", "3",
 def tiny_fit(tmp: Path, *extra: str) -> tuple[Path, str]:
     """A tiny fit of configs/icpo_darkroom.yaml (its W&B logger saving under ``tmp/out``), wired as the CLI
     wires it: ``CSVMetrics`` and ``TrainingProgress`` among the callbacks, W&B pointed at the run directory
-    before the fit. Returns the run directory and what the fit printed on stdout (not a terminal)."""
+    before the fit. Returns the run directory and what the fit printed on stdout and stderr, as a log
+    (``2>&1``, not a terminal) holds them."""
     out = io.StringIO()
-    with contextlib.redirect_stdout(out), pytest.MonkeyPatch.context() as mp:
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out), pytest.MonkeyPatch.context() as mp:
         mp.chdir(tmp)
         mp.setattr(progress, "MIN_SECONDS", 0.0)  # tiny loops: a line at every 10%
         cli = run_cli(["--config", str(REPO / "configs/icpo_darkroom.yaml"), "--data.init_args.root_dir",
