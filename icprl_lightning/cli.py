@@ -6,6 +6,7 @@
     icprl generate --config configs/icpo_darkroom.yaml [--data.init_args.overwrite true]
     icprl evaluate --run NAME=CONFIG:CKPT [...]                        (evaluation/command.py)
     icprl import arrays.npz --out data/mine --kind step_preference --n-actions 5   (data/importer.py)
+    icprl report runs/icprl/<run id>                                   (evaluation/run_report.py)
     icprl checkpoint verify|stamp PATH ...                             (checkpoints.py)
 
 ``fit`` / ``validate`` / ``test`` / ``predict`` / ``generate`` are a LightningCLI (``trainer_cli.py``). The
@@ -34,6 +35,8 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
                  "deploy checkpoints on held-out tasks, with the context diagnostics"),
     "reproduce": ("icprl_lightning.reproduce", "main", "train and evaluate every run of a results table"),
     "import": ("icprl_lightning.data.importer", "main", "import recorded preference arrays as a dataset"),
+    "report": ("icprl_lightning.evaluation.run_report", "main",
+               "a run's learning curves and last held-out table, from its directory, no server needed"),
     "checkpoint": ("icprl_lightning.checkpoints", "main", "verify checkpoints, or stamp trusted old ones"),
 }
 VERBOSE_ENV = "ICPRL_VERBOSE"
@@ -106,6 +109,12 @@ def main(args: list[str] | None = None) -> None:
             raise
         sys.stderr.write(f"icprl {name}: error: {_one_line(e)}\n")
         raise SystemExit(2) from None
+    except Exception as e:
+        finite = sys.modules.get("icprl_lightning.callbacks.finite_check")  # loaded by then if a fit ran
+        if verbose or finite is None or not isinstance(e, finite.NonFiniteError):
+            raise
+        sys.stderr.write(f"icprl {name}: error: {_one_line(e)}\n")  # the fit failed: status 1, not a usage error
+        raise SystemExit(1) from None
 
 
 if __name__ == "__main__":

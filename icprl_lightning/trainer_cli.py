@@ -20,7 +20,10 @@ from typing import Any
 import lightning as L
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 
-from icprl_lightning.callbacks.run_directory import RunDirectory, run_directory
+from icprl_lightning.callbacks.defaults import default_callbacks
+from icprl_lightning.callbacks.run_directory import run_directory, unique_logger_versions
+from icprl_lightning.callbacks.run_logs import wandb_in_run_directory
+from icprl_lightning.progress import is_terminal
 
 
 class SaveConfigToRun(SaveConfigCallback):
@@ -188,8 +191,10 @@ class ICPRLCLI(LightningCLI):
             _verified_sizes_fit(self.model, ckpt, path)
 
     def before_fit(self) -> None:
+        unique_logger_versions(self.trainer)  # before Lightning makes the loggers' directories
         self.check_pairing()
         self.check_checkpoint_fits()
+        wandb_in_run_directory(self.trainer)  # W&B starts its run before any callback's setup
 
     def before_validate(self) -> None:
         self.check_pairing()
@@ -220,7 +225,9 @@ def run_cli(args: list[str], run: bool = True) -> ICPRLCLI:
     return ICPRLCLI(L.LightningModule, L.LightningDataModule, subclass_mode_model=True, subclass_mode_data=True,
                     save_config_callback=SaveConfigToRun,
                     # the DataModule shards its rows itself under several processes (data/datamodule.py)
-                    trainer_defaults={"callbacks": [RunDirectory()], "use_distributed_sampler": False},
+                    # Lightning's bar only in a terminal: in a log, TrainingProgress prints plain lines instead
+                    trainer_defaults={"callbacks": default_callbacks(), "use_distributed_sampler": False,
+                                      "enable_progress_bar": is_terminal()},
                     args=args, run=run, parser_kwargs=PARSER_KWARGS)
 
 

@@ -197,7 +197,7 @@ def _bad_files(good: Path, d: Path) -> dict[str, tuple[Path, type[Exception], st
             {CLASS_KEY: "icprl_lightning.methods.reward_gen.RewardGenModule"}))), ValueError,
             "does not fit RewardGenModule"),
         "no_checksum": (_edited(good, d / "old.ckpt", lambda c: (c.pop(CHECKSUM_KEY), c.pop(SEAL_KEY))), ValueError,
-                        "has no icprl_sha256 checksum .*`python -m icprl_lightning.checkpoints stamp "),
+                        "has no icprl_sha256 checksum .*`icprl checkpoint stamp "),
     }
 
 
@@ -333,8 +333,8 @@ def test_cli_validates_a_good_checkpoint_end_to_end(tmp_path, monkeypatch):
     data = tiny_darkroom_args(str(tmp_path / "data"))
     args = ["--config", str(REPO / "configs/icpo_darkroom.yaml"), "--trainer.logger", "false",
             "--trainer.default_root_dir", str(tmp_path), *data]
-    main(["fit", *args, "--trainer.fast_dev_run", "1"])
-    (ckpt,) = glob.glob(str(tmp_path / "**" / "*.ckpt"), recursive=True)
+    main(["fit", *args, "--trainer.max_steps", "1", "--trainer.limit_val_batches", "1"])
+    (ckpt,) = glob.glob(str(tmp_path / "**" / "last.ckpt"), recursive=True)
     main(["validate", *args, "--ckpt_path", ckpt, "--trainer.limit_val_batches", "1"])  # no SystemExit
 
 

@@ -52,8 +52,9 @@ def _listing(path: Path) -> list[str]:
 
 
 def _printed(text: str, what: str) -> str:
-    """The path a run printed as ``<what>: <path>`` (RunDirectory: run directory, best/last checkpoint)."""
-    found = re.findall(rf"^{what}: (\S+)$", text, re.MULTILINE)
+    """The path a run printed as ``<what>: <path>`` or ``<what> (<details>): <path>`` (RunDirectory: run
+    directory, best checkpoint; LastCheckpoint: last checkpoint)."""
+    found = re.findall(rf"^{what}(?: \([^)]*\))?: (\S+)$", text, re.MULTILINE)
     assert len(found) == 1, (what, text[-2000:])
     return found[0]
 
@@ -128,17 +129,15 @@ def test_icrg_without_a_stage_one_checkpoint_says_what_to_pass(tmp_path, monkeyp
 
 # ---- kill and resume ---------------------------------------------------------------------------------
 
-STEPS_PER_EPOCH, EPOCHS = 4, 8  # a checkpoint at the end of every epoch (every_n_train_steps = one epoch)
+STEPS_PER_EPOCH, EPOCHS = 4, 8  # last.ckpt at the end of every epoch (LastCheckpoint, a default callback)
 
 
 def _resume_config(tmp_path: Path) -> Path:
-    """configs/icpo_darkroom.yaml with one ModelCheckpoint every epoch's last step (save_last), no logger."""
+    """configs/icpo_darkroom.yaml with only the default callbacks (last.ckpt at every epoch's end), no logger."""
     config = yaml.safe_load((REPO / "configs/icpo_darkroom.yaml").read_text())
     config["trainer"].update(logger=False, max_epochs=EPOCHS, limit_train_batches=STEPS_PER_EPOCH,
                              enable_progress_bar=False, enable_model_summary=False, num_sanity_val_steps=0,
-                             callbacks=[{"class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
-                                         "init_args": {"every_n_train_steps": STEPS_PER_EPOCH, "save_last": True,
-                                                       "save_top_k": -1}}])
+                             callbacks=[])
     path = tmp_path / "icpo_resume.yaml"
     path.write_text(yaml.safe_dump(config))
     return path

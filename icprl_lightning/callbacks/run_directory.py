@@ -1,7 +1,10 @@
 """Each ``fit`` in its own run directory, and a resume that continues exactly where the run stopped.
 
 ``run_directory`` picks the directory once per fit; ``RunDirectory`` points checkpoints at it, prints where
-the run and its checkpoints are, and stores/restores the RNG states that make a resume exact.
+the run and its best checkpoint are, and stores/restores the RNG states that make a resume exact.
+``unique_logger_versions`` gives a CSV or TensorBoard logger a version of its own before the fit starts:
+they would otherwise pick ``version_N`` by listing their directory, and two fits started together list it
+at the same moment and share one run directory.
 """
 
 from __future__ import annotations
@@ -19,6 +22,23 @@ from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
 from lightning.pytorch.loggers.logger import DummyLogger
 
 RUN_DIR_ATTR = "_icprl_run_dir"
+
+
+def fresh_name() -> str:
+    """``<date>-<time>-<hex>``: sorts by start time, and two runs started in the same second differ."""
+    return f"{time.strftime('%Y%m%d-%H%M%S')}-{secrets.token_hex(3)}"
+
+
+def unique_logger_versions(trainer: L.Trainer) -> None:
+    """Give each CSV/TensorBoard logger without a version a fresh one (``fresh_name``), before anything reads it.
+
+    Call before ``trainer.fit``: Lightning creates the loggers' directories before any callback's ``setup``.
+    A version set in the config is kept. W&B needs nothing: its version is its random run id.
+    """
+    for logger in trainer.loggers:
+        # _version: the loggers' only handle on it (their ``version`` property fills it by listing the directory)
+        if isinstance(logger, (CSVLogger, TensorBoardLogger)) and logger._version is None:
+            logger._version = fresh_name()
 
 
 def run_directory(trainer: L.Trainer, pl_module: L.LightningModule | None = None) -> str:
@@ -46,8 +66,7 @@ def run_directory(trainer: L.Trainer, pl_module: L.LightningModule | None = None
     elif trainer.is_global_zero:
         name = type(pl_module).__name__.removesuffix("Module").lower() if pl_module is not None else "run"
         while True:  # a fresh directory, even for two runs started in the same second
-            run_dir = os.path.join(trainer.default_root_dir,
-                                   f"{name}-{time.strftime('%Y%m%d-%H%M%S')}-{secrets.token_hex(2)}")
+            run_dir = os.path.join(trainer.default_root_dir, f"{name}-{fresh_name()}")
             try:
                 os.makedirs(run_dir)
                 break
@@ -64,10 +83,13 @@ class RunDirectory(Callback):
 
     ``setup`` points each ``ModelCheckpoint`` without a ``dirpath`` at ``<run>/checkpoints`` (without a logger
     Lightning would use the shared ``<default_root_dir>/checkpoints``) and prints the run directory; the end
-    of ``fit`` prints where the best and the last checkpoint are (the path a pipeline's next stage takes, e.g.
-    ICRG's ``--model.init_args.reward_gen_checkpoint``). A checkpoint also stores the Python, NumPy and
-    torch RNG states, restored on ``--ckpt_path``, and validation runs RNG-isolated, so a run resumed from a
-    checkpoint saved at the end of an epoch draws the same shuffles as one that was never interrupted.
+    of ``fit`` prints each monitored best checkpoint with the metric it was chosen by, ``best checkpoint
+    (val/loss = 0.1234, epoch 7): PATH`` (the path a pipeline's next stage takes, e.g. ICRG's
+    ``--model.init_args.reward_gen_checkpoint``); ``LastCheckpoint`` prints the last one. An unmonitored
+    ``ModelCheckpoint`` has no "best" (its best is merely its latest) and prints nothing. A checkpoint also
+    stores the Python, NumPy and torch RNG states, restored on ``--ckpt_path``, and validation runs
+    RNG-isolated, so a run resumed from a checkpoint saved at the end of an epoch draws the same shuffles as
+    one that was never interrupted.
     """
 
     def setup(self, trainer, pl_module, stage: str) -> None:
@@ -84,13 +106,12 @@ class RunDirectory(Callback):
         if not trainer.is_global_zero:
             return
         for callback in trainer.checkpoint_callbacks:
-            if not isinstance(callback, ModelCheckpoint):
+            if not isinstance(callback, ModelCheckpoint) or not callback.monitor:
                 continue
-            best, last = callback.best_model_path, callback.last_model_path
-            if best and os.path.exists(best):
-                print(f"best checkpoint: {os.path.abspath(best)}", flush=True)
-            if last and os.path.exists(last):
-                print(f"last checkpoint: {os.path.abspath(last)}", flush=True)
+            best, score = callback.best_model_path, callback.best_model_score
+            if best and score is not None and os.path.exists(best):
+                print(f"best checkpoint ({callback.monitor} = {float(score):.6g}{_epoch_of(best)}): "
+                      f"{os.path.abspath(best)}", flush=True)
 
     # Validation during fit draws from the global RNGs too (e.g. ICPO's pair draws); it runs isolated, as
     # Lightning's sanity check does, so the training stream is the same whether or not a run validated, and
@@ -103,6 +124,10 @@ class RunDirectory(Callback):
         if rng is not None:
             _set_rng_state(rng)
 
+    def on_exception(self, trainer, pl_module, exception: BaseException) -> None:
+        # a fit stopped inside validation (SIGTERM) is saved next (LastCheckpoint): with the training stream
+        self.on_validation_end(trainer, pl_module)
+
     def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
         checkpoint["icprl_rng"] = _rng_state()
 
@@ -110,6 +135,14 @@ class RunDirectory(Callback):
         # callbacks are restored before the fit loop makes its first iterator (which draws the shuffle)
         if "icprl_rng" in checkpoint:
             _set_rng_state(checkpoint["icprl_rng"])
+
+
+def _epoch_of(path: str) -> str:
+    """``", epoch E"`` as stored in the checkpoint (memory-mapped: no weight is read), or "" if unreadable."""
+    try:
+        return f", epoch {torch.load(path, map_location='cpu', weights_only=True, mmap=True)['epoch']}"
+    except Exception:  # the path is still worth printing
+        return ""
 
 
 def _rng_state() -> dict:
