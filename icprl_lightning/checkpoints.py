@@ -24,7 +24,7 @@ checks the parsed path (however it was spelled), verifies the file as above and 
 copy of exactly the verified contents, so Lightning never unpickles a file this module has not read.
 
 A file saved before the checksum existed is refused, with the way out in the message: for a file you
-trust, ``python -m icprl_lightning.checkpoints stamp PATH`` adds the checksum (it loads the file as safely
+trust, ``icprl checkpoint stamp PATH`` adds the checksum (it loads the file as safely
 as any other read; the stamp only vouches that the file has not changed since).
 """
 
@@ -236,7 +236,7 @@ def verify(ckpt: dict[str, Any], path: str | Path, expected: type | None = None,
     if CHECKSUM_KEY not in ckpt:
         raise ValueError(f"{path} has no {CHECKSUM_KEY} checksum (saved by an older icprl_lightning), so its "
                          "weights cannot be checked for damage; if you trust the file, add one with "
-                         f"`python -m icprl_lightning.checkpoints stamp {path}`")
+                         f"`icprl checkpoint stamp {path}`")
     try:
         expected_sum = checksum(name, hparams, state_dict)
     except (TypeError, ValueError, RuntimeError) as e:  # only a crafted file: sparse tensors, mixed-type keys
@@ -249,7 +249,7 @@ def verify(ckpt: dict[str, Any], path: str | Path, expected: type | None = None,
     elif require_seal:
         raise ValueError(f"{path} has no {SEAL_KEY} (saved by an older icprl_lightning), so the optimizer, loop and "
                          "RNG states a resume restores cannot be checked; start a new fit from its weights instead, or "
-                         f"if you trust the file add one with `python -m icprl_lightning.checkpoints stamp {path}`")
+                         f"if you trust the file add one with `icprl checkpoint stamp {path}`")
     for part in ("state_dict", "optimizer_states", "lr_schedulers"):
         where = _non_finite(ckpt.get(part, ()), part)
         if where:
@@ -351,7 +351,7 @@ def stamp_file(path: str | Path) -> str:
 
 
 def main(args: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m icprl_lightning.checkpoints", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="icprl checkpoint", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("stamp", help="add the checksum to trusted checkpoints saved before it existed").add_argument(
         "paths", nargs="+")
