@@ -28,6 +28,14 @@ from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.dueling_bandit import LinearDuelingBanditFamily
 
 REPO = Path(__file__).resolve().parents[1]
+# the smallest DarkRoom data and model a CLI run can train, validate and roll out (override a shipped config)
+TINY_DATA = ["--data.init_args.setting.init_args.trajectories_per_task", "3",
+             "--data.init_args.setting.init_args.val_trajectories_per_task", "2",
+             "--data.init_args.setting.init_args.eval_contexts_per_task", "2",
+             "--data.init_args.setting.init_args.calibration_episodes", "2",
+             "--data.init_args.setting.init_args.reference_episodes", "2",
+             "--data.init_args.progress", "false"]
+TINY_MODEL = ["--model.init_args.n_layer", "1", "--model.init_args.n_embd", "16", "--model.init_args.n_head", "2"]
 SETTINGS = {"step_preference": StepPreferences, "reward": RewardContexts, "trajectory_preference": TrajectoryPairs,
             "reward_trajectory": RewardTrajectories}
 REACH_SETTING = {"val_trajectories_per_task": 2, "eval_contexts_per_task": 4, "calibration_episodes": 8,

@@ -12,6 +12,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+from factories import TINY_DATA, TINY_MODEL
 from lightning.pytorch.loggers import CSVLogger, WandbLogger
 
 from icprl_lightning import progress
@@ -22,14 +23,8 @@ from icprl_lightning.cli import run_cli
 from icprl_lightning.evaluation.run_report import main as report_main
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = ["--data.init_args.setting.init_args.trajectories_per_task", "3",
-        "--data.init_args.setting.init_args.val_trajectories_per_task", "2",
-        "--data.init_args.setting.init_args.eval_contexts_per_task", "2",
-        "--data.init_args.setting.init_args.calibration_episodes", "2",
-        "--data.init_args.setting.init_args.reference_episodes", "2",
-        "--data.init_args.progress", "false",
-        "--model.init_args.n_layer", "1", "--model.init_args.n_embd", "16", "--model.init_args.n_head", "2",
-        "--trainer.max_epochs", "2", "--trainer.limit_train_batches", "4", "--trainer.log_every_n_steps", "1",
+TINY = [*TINY_DATA, *TINY_MODEL, "--trainer.max_epochs", "2", "--trainer.limit_train_batches", "4",
+        "--trainer.log_every_n_steps", "1",
         "--trainer.enable_progress_bar", "false", "--trainer.enable_model_summary", "false"]
 
 

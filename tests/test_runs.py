@@ -23,17 +23,11 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
+from factories import TINY_DATA, TINY_MODEL
 
 from icprl_lightning.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[1]
-TINY_DATA = ["--data.init_args.setting.init_args.trajectories_per_task", "3",
-             "--data.init_args.setting.init_args.val_trajectories_per_task", "2",
-             "--data.init_args.setting.init_args.eval_contexts_per_task", "2",
-             "--data.init_args.setting.init_args.calibration_episodes", "2",
-             "--data.init_args.setting.init_args.reference_episodes", "2",
-             "--data.init_args.progress", "false"]
-TINY_MODEL = ["--model.init_args.n_layer", "1", "--model.init_args.n_embd", "16", "--model.init_args.n_head", "2"]
 LOGGERS = {
     "off": lambda out: ["--trainer.logger", "false", "--trainer.default_root_dir", str(out)],
     "wandb": lambda out: ["--trainer.logger.init_args.save_dir", str(out)],  # the configs' WandbLogger

@@ -26,6 +26,7 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
+from factories import TINY_DATA, TINY_MODEL
 from lightning.pytorch.loggers import CSVLogger
 
 from icprl_lightning.callbacks.atomic_io import AtomicCheckpointIO
@@ -35,13 +36,7 @@ from icprl_lightning.cli import main, run_cli
 from icprl_lightning.methods.icpo import ICPOModule
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = ["--data.init_args.setting.init_args.trajectories_per_task", "3",
-        "--data.init_args.setting.init_args.val_trajectories_per_task", "2",
-        "--data.init_args.setting.init_args.eval_contexts_per_task", "2",
-        "--data.init_args.setting.init_args.calibration_episodes", "2",
-        "--data.init_args.setting.init_args.reference_episodes", "2",
-        "--data.init_args.progress", "false",
-        "--model.init_args.n_layer", "1", "--model.init_args.n_embd", "16", "--model.init_args.n_head", "2"]
+TINY = [*TINY_DATA, *TINY_MODEL]
 STEPS = 2  # training batches per epoch
 
 
