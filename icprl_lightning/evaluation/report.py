@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 from rich.console import Console
+from rich.measure import Measurement
 from rich.table import Table
 
 MDP_METRICS = ("return", "normalized_return", "success")
@@ -37,10 +38,10 @@ COLUMNS = (("return", "return"), ("normalized", "normalized_return"), ("success"
 # ---- terminal tables (the callbacks) ---------------------------------------------------------------
 
 def show_table(table: Table) -> None:
-    """Print to stderr; a log file (not a terminal) gets 140 columns instead of wrapping at 80."""
+    """Print to stderr; a log file (not a terminal) gets the table's full width instead of wrapping at 80."""
     console = Console(stderr=True)
     if not console.is_terminal:
-        console.width = 140
+        console.width = max(80, Measurement.get(console, console.options.update_width(1000), table).maximum)
     console.print(table)
 
 
