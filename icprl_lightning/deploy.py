@@ -2,10 +2,14 @@
 
     from icprl_lightning import load_agent
     agent = load_agent("run/checkpoints/last.ckpt")   # any method's checkpoint
+    agent.obs_dim, agent.action_spec, agent.max_context, agent.context_kind   # what it takes (below)
     agent.reset(context)                              # typed, batched context for B tasks
     action = agent.act(obs)                           # obs [B, S] -> [B] (discrete) | [B, A]
     actions = agent.act_each_prefix(obs)              # obs [B, S] -> [B, T] | [B, T, A]: after D_{1:h}, h = 1..T
 
+``obs_dim`` (S), ``action_spec`` (discrete with ``size`` choices, or a continuous vector of ``size``),
+``max_context`` (the most context steps ``reset`` accepts) and ``context_kind`` / ``context_type`` (the
+context class ``reset`` takes) say what a checkpoint expects, so a script need not guess them.
 ``reset`` validates the context; the first ``act`` encodes it once into a KV cache and each ``act`` runs
 only the query token against it (paper, "DP²T Deployment" / "ICPO Deployment", with D fixed).
 ``act_each_prefix`` answers "what would the agent do after only the first h comparisons?" for every h at
@@ -26,14 +30,19 @@ float64 inputs are converted to float32 (``contexts.py`` lists the rules). Calli
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from icprl_lightning.contexts import CONTEXT_TYPES, as_tensor, check_floats
+from icprl_lightning.contexts import CONTEXT_TYPES, ActionSpec, as_tensor, check_floats
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.models.transformer import KVCache
+
+# The keys of ``contexts.CONTEXT_TYPES``, spelled out so a type checker knows the values ``Agent.context_kind``
+# can take (a test checks that the two agree).
+ContextKind = Literal["step_preference", "trajectory_preference", "reward", "reward_trajectory"]
 
 
 class Agent:
@@ -61,8 +70,31 @@ class Agent:
         return next(self.policy.parameters()).device
 
     @property
+    def obs_dim(self) -> int:
+        """S: the size of one observation, for ``act(obs [B, S])`` and the context's states (0 for a bandit)."""
+        return self.policy.state_dim
+
+    @property
+    def action_spec(self) -> ActionSpec:
+        """What an action is: ``discrete`` with ``size`` choices (actions int64 in [0, size)), or a continuous
+        vector of ``size`` floats."""
+        return self.policy.action_spec
+
+    @property
+    def max_context(self) -> int:
+        """The most context steps T that ``reset`` accepts: the context length the model was trained for."""
+        return self.policy.transformer.max_context
+
+    @property
+    def context_kind(self) -> ContextKind:
+        """The kind of context ``reset`` takes: ``step_preference``, ``trajectory_preference``, ``reward``
+        or ``reward_trajectory`` (``context_type`` is its class)."""
+        return self.policy.context_kind
+
+    @property
     def context_type(self) -> type:
-        return CONTEXT_TYPES[self.policy.context_kind]
+        """The context class ``reset`` takes (``StepPreferenceContext``, ...), from ``context_kind``."""
+        return CONTEXT_TYPES[self.context_kind]
 
     @torch.no_grad()
     def reset(self, context) -> None:
@@ -75,8 +107,8 @@ class Agent:
         self.context, self.cache = None, None
         if not isinstance(context, self.context_type):
             raise ValueError(f"this agent takes a {self.context_type.__name__}, got {type(context).__name__}")
-        context = context.validate(self.policy.state_dim, self.policy.action_spec)
-        length, limit = context.states.shape[1], self.policy.transformer.max_context
+        context = context.validate(self.obs_dim, self.action_spec)
+        length, limit = context.states.shape[1], self.max_context
         if length > limit:
             raise ValueError(f"context holds {length} steps; this model was trained for at most {limit}")
         self.context = context.to(self.device)

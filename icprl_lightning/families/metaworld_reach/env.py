@@ -42,13 +42,16 @@ actions taken (``ReachTaskFamily.independent_state_rollouts``).
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import multiprocessing as mp
 import pickle
+import sys
 import traceback
 import weakref
 from functools import lru_cache
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import NamedTuple
 
 import gymnasium as gym
@@ -351,6 +354,38 @@ def _shutdown(conns: list[Connection], procs: list[mp.process.BaseProcess]) -> N
         conn.close()
 
 
+def _has_main_guard(path: str) -> bool | None:
+    """Whether the script at ``path`` has a top-level ``if __name__ == "__main__":`` (None: unreadable)."""
+    try:
+        tree = ast.parse(Path(path).read_text(), filename=path)
+    except (OSError, SyntaxError, ValueError):
+        return None
+    for node in tree.body:
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Compare) and len(node.test.comparators) == 1:
+            sides = {ast.unparse(node.test.left), ast.unparse(node.test.comparators[0])}
+            if "__name__" in sides and ({"'__main__'", '"__main__"'} & sides):
+                return True
+    return False
+
+
+def _startup_death_message(start_method: str) -> str:
+    """One line saying why a worker died before answering its first command, and what to do.
+
+    Under ``spawn`` and ``forkserver`` (not ``fork``) Python imports the parent's main script again before a
+    worker runs (the forkserver preloads it once for all workers): a script that builds a ReachVectorEnv at
+    top level then starts processes while being imported, which multiprocessing refuses, and the worker dies
+    with that error on stderr. The parent only sees a closed pipe, so it names the likely cause here.
+    """
+    main_path = getattr(sys.modules.get("__main__"), "__file__", None)
+    if start_method in ("spawn", "forkserver") and main_path and _has_main_guard(main_path) is False:
+        return (f"a reach-v3 worker process died at start-up: under the {start_method!r} start method every worker "
+                f"first imports your main script {main_path}, whose top-level code builds Meta-World envs again; "
+                "put that code under `if __name__ == \"__main__\":` (Python's multiprocessing rule, "
+                "https://docs.python.org/3/library/multiprocessing.html#multiprocessing-programming)")
+    return ("a reach-v3 worker process died at start-up, before answering its first command; its own error "
+            "is printed above on stderr")
+
+
 class _WorkerPool:
     """Shared float64 arrays plus the processes (or, with 0 workers, the local envs) that fill them."""
 
@@ -358,6 +393,8 @@ class _WorkerPool:
         if num_workers < 0:
             raise ValueError(f"num_workers must be ≥ 0, got {num_workers}")
         self._conns: list[Connection] = []
+        self._start_method = start_method
+        self._answered = False  # whether every worker has answered a command: a death before that is at start-up
         self._local: _EnvSlice | None = None
         self._finalizer: weakref.finalize | None = None
         self._closed = False
@@ -397,9 +434,12 @@ class _WorkerPool:
             try:
                 reply = conn.recv()
             except (EOFError, OSError):
+                if not self._answered:
+                    raise RuntimeError(_startup_death_message(self._start_method)) from None
                 reply = "worker process died"
             if reply is not None:
                 errors.append(reply)
+        self._answered = True
         if errors:
             raise RuntimeError("reach-v3 worker failed:\n" + "\n".join(errors))
 
