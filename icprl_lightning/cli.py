@@ -81,8 +81,25 @@ def _one_line(error: BaseException) -> str:
     return text or type(error).__name__
 
 
+def _quiet_dependency_noise() -> None:
+    """Silence, each by name, messages of dependencies that a user of ``icprl`` cannot act on."""
+    import logging
+    import warnings
+
+    # Lightning's own _pytree helper builds torch's deprecated LeafSpec: only a Lightning release fixes it
+    warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)` is deprecated",
+                            category=FutureWarning)
+
+    class NoTips(logging.Filter):  # Lightning's adverts ("💡 Tip: ... litlogger"), not about this run
+        def filter(self, record: logging.LogRecord) -> bool:
+            return not record.getMessage().startswith("💡 Tip:")
+
+    logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(NoTips())
+
+
 def main(args: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if args is None else args)
+    _quiet_dependency_noise()
     verbose = "--verbose" in argv or os.environ.get(VERBOSE_ENV, "") not in ("", "0")
     argv = [a for a in argv if a != "--verbose"]
     if not argv or argv[0] in ("-h", "--help"):

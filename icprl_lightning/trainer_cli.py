@@ -38,7 +38,7 @@ class SaveConfigToRun(SaveConfigCallback):
             return
         run_dir = run_directory(trainer, pl_module)
         if trainer.is_global_zero:
-            self.parser.save(self.config, os.path.join(run_dir, self.config_filename), skip_none=False,
+            self.parser.save(self.config, os.path.join(run_dir, self.config_filename), skip_unset=False,
                              overwrite=self.overwrite, multifile=self.multifile)
 
 

@@ -51,8 +51,9 @@ def wandb_in_run_directory(trainer: L.Trainer) -> str | None:
         if logger._id is None:
             logger._id = logger._wandb_init["id"] = secrets.token_hex(4)  # W&B's ids: 8 characters [0-9a-z]
     run_dir = os.path.abspath(_logger_directory(loggers[0], trainer.default_root_dir))
+    os.makedirs(run_dir, exist_ok=True)  # W&B looks for a git root there first, and warns when it is missing
     for logger in pending:
-        logger._wandb_init["dir"] = run_dir  # W&B creates it; wandb.init writes <dir>/wandb/...
+        logger._wandb_init["dir"] = run_dir  # wandb.init writes <dir>/wandb/...
     return run_dir
 
 

@@ -230,6 +230,12 @@ class ICRGAgent:
         self.policy_agent = policy_agent
         self.labeled_context: RewardTrajectoryContext | None = None
 
+    # what Agent exposes, for the context this agent takes (trajectory pairs and a behavior trajectory)
+    obs_dim = property(lambda self: self.policy_agent.obs_dim, doc="S, as ``Agent.obs_dim``")
+    action_spec = property(lambda self: self.policy_agent.action_spec, doc="as ``Agent.action_spec``")
+    max_context = property(lambda self: self.policy_agent.max_context, doc="the most behavior steps reset accepts")
+    context_kind = property(lambda self: "trajectory_preference", doc="reset takes a TrajectoryPreferenceContext")
+
     @torch.no_grad()
     def reset(self, context: TrajectoryPreferenceContext) -> None:
         """Label the behavior trajectory with R_ψ(s, a | ξ⁺, ξ⁻) and condition the policy on it."""
