@@ -59,6 +59,9 @@ class DarkRoomVectorEnv(gym.vector.VectorEnv):
     entered the goal is ``terminated`` and stays frozen with zero reward until the next reset.
     """
 
+    # No autoreset: the batch shares one clock, every episode ends at the horizon, and reset() restarts all.
+    metadata = {"autoreset_mode": gym.vector.AutoresetMode.DISABLED}
+
     def __init__(self, family: DarkRoomFamily, goals: np.ndarray) -> None:
         goals = np.asarray(goals, dtype=np.int64)
         if goals.ndim != 2 or goals.shape[1] != 2:
@@ -76,6 +79,9 @@ class DarkRoomVectorEnv(gym.vector.VectorEnv):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
+        if options and "reset_mask" in options:
+            raise ValueError(f"{type(self).__name__}.reset: options['reset_mask'] (a partial reset) is not supported: "
+                             "the batch shares one clock; call reset() to restart every episode")
         self.states = self.family.sample_starts(self.goals, self.np_random)
         self.done[:] = False
         self.t = 0

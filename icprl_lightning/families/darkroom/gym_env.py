@@ -5,6 +5,10 @@ episode at a time: obs is the agent's (x, y) cell as float32 [2] (the goal is ne
 constant of the env), ``Discrete(5)`` actions (up, down, left, right, no-op), r = 1 when a move lands
 on the goal, truncation at H = 100, and termination on entering the goal only with the family's
 ``terminate_on_goal`` flag. ``info["success"]`` is true once the agent stands on the goal.
+
+``darkroom_env`` and ``darkroom_vector_env`` build the single and the vector env from plain keyword
+arguments: they are the entry points of the Gymnasium id ``icprl/DarkRoom-v0``
+(``families/registration.py``), so ``gymnasium.make`` and ``gymnasium.make_vec`` accept the same kwargs.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 from icprl_lightning.families.darkroom import DarkRoomFamily
-from icprl_lightning.families.darkroom.env import N_ACTIONS, step_reward, transition
+from icprl_lightning.families.darkroom.env import N_ACTIONS, DarkRoomVectorEnv, step_reward, transition
 
 
 class DarkRoomGoalEnv(gym.Env):
@@ -49,3 +53,38 @@ class DarkRoomGoalEnv(gym.Env):
         terminated = self.family.terminate_on_goal and reward > 0
         return (self.state.astype(np.float32), reward, terminated, self.t >= self.family.horizon,
                 {"success": reward > 0})
+
+
+def darkroom_env(goal: np.ndarray, horizon: int = 100, terminate_on_goal: bool = False) -> DarkRoomGoalEnv:
+    """``gymnasium.make("icprl/DarkRoom-v0", goal=[x, y])``: one task of the paper's 10×10 DarkRoom."""
+    family = DarkRoomFamily(horizon=horizon, terminate_on_goal=terminate_on_goal)
+    return DarkRoomGoalEnv(family, _batch_of_cells(family, 1, goal, None)[0])
+
+
+def darkroom_vector_env(num_envs: int = 1, goal: np.ndarray | None = None, goals: np.ndarray | None = None,
+                        horizon: int = 100, terminate_on_goal: bool = False) -> DarkRoomVectorEnv:
+    """``gymnasium.make_vec("icprl/DarkRoom-v0", num_envs=N, goal=[x, y])``: N episodes as one batched env.
+
+    ``goal`` [2] gives every episode the same task (what ``make_vec(..., vectorization_mode="sync")`` builds
+    from the same kwargs); ``goals`` [N, 2] gives each its own.
+    """
+    family = DarkRoomFamily(horizon=horizon, terminate_on_goal=terminate_on_goal)
+    return DarkRoomVectorEnv(family, _batch_of_cells(family, num_envs, goal, goals))
+
+
+def _batch_of_cells(family: DarkRoomFamily, num_envs: int, goal: np.ndarray | None,
+                    goals: np.ndarray | None) -> np.ndarray:
+    """The [num_envs, 2] goal cells from exactly one of ``goal`` [2] and ``goals`` [num_envs, 2]."""
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
+        raise ValueError(f"icprl/DarkRoom-v0: num_envs must be an integer >= 1, got {num_envs!r}")
+    if (goal is None) == (goals is None):
+        raise ValueError("icprl/DarkRoom-v0: pass exactly one of goal=[x, y] (every env) and "
+                         f"goals=[[x, y], ...] (one per env, {num_envs} rows)")
+    cells = np.tile(np.asarray(goal), (num_envs, 1)) if goals is None else np.asarray(goals)
+    if cells.shape != (num_envs, 2) or not np.issubdtype(cells.dtype, np.integer):
+        raise ValueError(f"icprl/DarkRoom-v0: goals must be integer cells of shape [{num_envs}, 2], "
+                         f"got {cells.dtype} {list(cells.shape)}")
+    if np.any(cells < 0) or np.any(cells >= family.size):
+        raise ValueError(f"icprl/DarkRoom-v0: every goal must be a cell of the {family.size}x{family.size} grid "
+                         f"(coordinates in [0, {family.size - 1}]), got {cells.tolist()}")
+    return cells.astype(np.int64)

@@ -168,6 +168,9 @@ class ReachVectorEnv(gym.vector.VectorEnv):
     manager or call ``close()``; a worker's exception is re-raised here with its traceback.
     """
 
+    # No autoreset: the batch shares one clock, every episode ends at the horizon, and reset() restarts all.
+    metadata = {"autoreset_mode": gym.vector.AutoresetMode.DISABLED}
+
     def __init__(self, goals: np.ndarray, horizon: int = HORIZON, num_workers: int = 2,
                  start_method: str = "forkserver") -> None:
         goals = np.array(goals, dtype=np.float64)
@@ -194,6 +197,9 @@ class ReachVectorEnv(gym.vector.VectorEnv):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Start new episodes (``options["goals"]`` [B, 3] replaces the goals); redraws the pucks."""
         super().reset(seed=seed)
+        if options and "reset_mask" in options:
+            raise ValueError(f"{type(self).__name__}.reset: options['reset_mask'] (a partial reset) is not supported: "
+                             "the batch shares one clock; call reset() to restart every episode")
         goals = (options or {}).get("goals")
         if goals is not None:
             goals = np.array(goals, dtype=np.float64)

@@ -11,6 +11,10 @@ and is enough for a single-goal env, where the goal is a constant. Visible is fo
 SAC oracle (``families/metaworld_reach/sac.py``), whose actor and critic must tell the goals apart; it is privileged
 information and never reaches a preference learner. ``oracle_state()`` gives the privileged
 ``ReachOracleState`` (hand, TCP, mocap, goal) as a batch of one, for the scripted expert in evaluation.
+
+``reach_env`` and ``reach_vector_env`` build the single env (one goal) and ``ReachVectorEnv`` from plain
+keyword arguments: they are the entry points of the Gymnasium id ``icprl/MetaWorldReach-v0``
+(``families/registration.py``), so ``gymnasium.make`` and ``gymnasium.make_vec`` accept the same kwargs.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from icprl_lightning.families.metaworld_reach.env import (
     OBS_DIM,
     SUCCESS_RADIUS,
     ReachOracleState,
+    ReachVectorEnv,
     latent_reward,
     reach_task,
     sample_puck_positions,
@@ -94,3 +99,38 @@ class ReachGoalEnv(gym.Env):
         obs = obs.astype(np.float32)
         obs[GOAL_SLICE] = self.goal if self.goal_visible else 0.0
         return obs
+
+
+def reach_env(goal: np.ndarray, horizon: int = HORIZON, goal_visible: bool = False) -> ReachGoalEnv:
+    """``gymnasium.make("icprl/MetaWorldReach-v0", goal=[x, y, z])``: one reach-v3 task."""
+    return ReachGoalEnv(_batch_of_goals(1, goal, None)[0], horizon=horizon, goal_visible=goal_visible)
+
+
+def reach_vector_env(num_envs: int = 1, goal: np.ndarray | None = None, goals: np.ndarray | None = None,
+                     horizon: int = HORIZON, num_workers: int = 2, goal_visible: bool = False) -> ReachVectorEnv:
+    """``gymnasium.make_vec("icprl/MetaWorldReach-v0", num_envs=N, goal=[x, y, z])``: ``ReachVectorEnv``.
+
+    ``goal`` [3] gives every episode the same task (what ``make_vec(..., vectorization_mode="sync")`` builds
+    from the same kwargs); ``goals`` [N, 3] gives each its own. ``num_workers`` worker processes (0: this
+    process) step the envs; workers need the caller's script under ``if __name__ == "__main__":``.
+    """
+    if goal_visible:
+        # the batched env serves learners: its observations always hide the goal
+        raise ValueError("icprl/MetaWorldReach-v0: goal_visible=True is for the single env (gymnasium.make); the "
+                         "vector env always hides the goal (its oracle_state().obs shows it)")
+    return ReachVectorEnv(_batch_of_goals(num_envs, goal, goals), horizon=horizon, num_workers=num_workers)
+
+
+def _batch_of_goals(num_envs: int, goal: np.ndarray | None, goals: np.ndarray | None) -> np.ndarray:
+    """The [num_envs, 3] finite goals from exactly one of ``goal`` [3] and ``goals`` [num_envs, 3]."""
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
+        raise ValueError(f"icprl/MetaWorldReach-v0: num_envs must be an integer >= 1, got {num_envs!r}")
+    if (goal is None) == (goals is None):
+        raise ValueError("icprl/MetaWorldReach-v0: pass exactly one of goal=[x, y, z] (every env) and "
+                         f"goals=[[x, y, z], ...] (one per env, {num_envs} rows)")
+    points = np.tile(np.asarray(goal, dtype=np.float64), (num_envs, 1)) if goals is None \
+        else np.asarray(goals, dtype=np.float64)
+    if points.shape != (num_envs, 3) or not np.all(np.isfinite(points)):
+        raise ValueError(f"icprl/MetaWorldReach-v0: goals must be finite points of shape [{num_envs}, 3], "
+                         f"got shape {list(points.shape)}")
+    return points
