@@ -138,6 +138,16 @@ class ICPRLCLI(LightningCLI):
             sub = getattr(self, "_subcommand_parsers", {}).get(subcommand, parser)
             raise CLIError(summarize_parse_error(str(e), sub)) from None
 
+    def _instantiate_trainer(self, config: dict[str, Any], callbacks: list) -> L.Trainer:
+        """As LightningCLI's, but ``--trainer.enable_checkpointing false`` also drops the default callbacks that
+        save checkpoints (``LastCheckpoint``), which Lightning would otherwise refuse beside that flag."""
+        if config.get("enable_checkpointing") is False:
+            from lightning.pytorch.callbacks import Checkpoint
+
+            self.trainer_defaults = {**self.trainer_defaults, "callbacks": [
+                c for c in self.trainer_defaults.get("callbacks", []) if not isinstance(c, Checkpoint)]}
+        return super()._instantiate_trainer(config, callbacks)
+
     def _parse_ckpt_path(self) -> None:
         """Check the ``ckpt_path`` Lightning will load, on the parsed config (``checkpoints.checkpoint_for_
         lightning``), and hand Lightning a private copy of the verified contents, loaded ``weights_only``."""
