@@ -17,7 +17,7 @@ import torch
 from factories import bandit_data, darkroom_data
 
 from icprl_lightning import load_agent
-from icprl_lightning.checkpoints import load_module
+from icprl_lightning.checkpoints import SEAL_KEY, load_module, seal
 from icprl_lightning.contexts import context_from_batch
 from icprl_lightning.methods.icrg import ICRGAgent, ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
@@ -226,6 +226,7 @@ def _with_record(src: pathlib.Path, dst: pathlib.Path, record: dict | None) -> s
     ckpt.pop("PreferenceDataModule")
     if record is not None:
         ckpt["PreferenceDataModule"] = record
+    ckpt[SEAL_KEY] = seal(ckpt)  # a consistent file, as a fit of that other fold layout would save
     torch.save(ckpt, dst)
     return str(dst)
 
