@@ -162,3 +162,14 @@ def darkroom_tprl_config(path: Path, data_root: str, setting: dict[str, Any]) ->
                       "setting": {"class_path": "icprl_lightning.data.settings.TrajectoryPairs", "init_args": setting},
                       "root_dir": data_root, "pairs": True}}}))
     return path
+
+
+def save_untrained(module, path: Path) -> Path:
+    """Save ``module`` as training does (Lightning's checkpoint dict, our on_save_checkpoint), without a fit."""
+    import lightning as L
+
+    trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False, accelerator="cpu", default_root_dir=path.parent)
+    trainer.strategy.connect(module)
+    trainer.save_checkpoint(path)
+    return path

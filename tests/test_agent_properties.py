@@ -4,12 +4,11 @@ context built from those properties alone is accepted by ``reset`` and ``act``."
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import get_args
 
-import lightning as L
 import pytest
 import torch
+from factories import save_untrained
 
 from icprl_lightning import load_agent
 from icprl_lightning.contexts import CONTEXT_TYPES, ActionSpec, context_fields
@@ -33,13 +32,7 @@ CASES = {
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
-def _save(module: L.LightningModule, path: Path) -> Path:
-    """Save as training does (Lightning's checkpoint dict and our checksum), without a fit."""
-    trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False, accelerator="cpu", default_root_dir=path.parent)
-    trainer.strategy.connect(module)
-    trainer.save_checkpoint(path)
-    return path
+_save = save_untrained
 
 
 @pytest.fixture(scope="module")

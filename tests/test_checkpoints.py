@@ -15,7 +15,7 @@ from pathlib import Path
 import lightning as L
 import pytest
 import torch
-from factories import tiny_darkroom_args
+from factories import save_untrained, tiny_darkroom_args
 
 from icprl_lightning import StepPreferenceContext, load_agent
 from icprl_lightning.checkpoints import (
@@ -39,13 +39,7 @@ SIZES = dict(n_layer=1, n_embd=16, n_head=2)
 pytestmark = pytest.mark.filterwarnings("ignore:Detected pickle protocol 4:UserWarning")  # the legacy pickle
 
 
-def _save(module: L.LightningModule, path: Path) -> Path:
-    """Save as training does (Lightning's checkpoint dict, our on_save_checkpoint), without a fit."""
-    trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False, accelerator="cpu", default_root_dir=path.parent)
-    trainer.strategy.connect(module)
-    trainer.save_checkpoint(path)
-    return path
+_save = save_untrained
 
 
 @pytest.fixture(scope="module")
