@@ -63,7 +63,7 @@ def method_classes() -> dict[str, type]:
     """The allow-list as classes, imported by the fixed names in ``METHODS`` (never by a name from a file).
 
     Imported when a checkpoint is built, not at the top: the methods import this module to save, and it
-    sits below them (tests/test_layering.py).
+    sits below them (tests/unit/test_layering.py).
     """
     classes = {}
     for name in METHODS:

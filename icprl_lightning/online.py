@@ -23,7 +23,7 @@ shape [B, T, 0] (``data/settings/bandit_duels.py``; pass ``obs = torch.zeros(B, 
 kinds (reward contexts, T-PRL pairs, reward trajectories) are refused.
 
 After any number of ``observe`` calls the agent's outputs equal those of ``policy.encode`` + ``query``
-on the grown context, and of ``policy.forward`` with the whole context visible (tests/test_online_agent.py).
+on the grown context, and of ``policy.forward`` with the whole context visible (tests/deploy/test_online_agent.py).
 With an empty context the query takes position 0, a position training never scores (ICPO queries see
 1..H comparisons), so the first proposal of an empty-start agent is the model's uninformed prior.
 

@@ -19,7 +19,7 @@ reordered task-major (stable, so each task keeps its recorded order), the tasks 
 val with a seeded permutation, and the result is written by ``store.write_dataset`` (one ``.npy`` per
 field and split, ``manifest.json`` with checksums, staged and renamed). The field checks here are the
 loader's (``data/schema.py``) applied to the source, so whatever imports also loads
-(``tests/test_import_fuzz.py``). ``RecordedPreferenceDataModule`` (``data/recorded.py``) trains any
+(``tests/reliability/test_import_fuzz.py``). ``RecordedPreferenceDataModule`` (``data/recorded.py``) trains any
 method on it.
 """
 

@@ -15,7 +15,7 @@ from icprl_lightning.contexts import TrajectoryPreferenceContext
 from icprl_lightning.families.darkroom.env import step_reward, transition
 from icprl_lightning.families.darkroom.oracle import optimal_actions
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "scripts"))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "scripts"))
 import reward_gen_bayes  # noqa: E402
 
 SIZE = 4

@@ -28,7 +28,7 @@ from icprl_lightning.families.metaworld_reach.env import GOAL_SLICE, latent_rewa
 from icprl_lightning.families.metaworld_reach.oracle import expert_actions  # noqa: E402
 from icprl_lightning.preferences import preference_probability  # noqa: E402
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 H = 10
 FORBIDDEN = ("reward", "goal", "advantage", "q_value", "value", "return")
 PAIR = ("states_a", "actions_a", "states_b", "actions_b", "preferred")

@@ -196,7 +196,7 @@ def test_action_probe_scores_a_constant_action_against_the_goal(family):
 
     from icprl_lightning.data.suites import EvalSuite
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     import reach_action_probe
 
     class PlusY:

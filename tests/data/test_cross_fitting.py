@@ -262,7 +262,7 @@ def test_mismatched_fold_checkpoints_are_refused(reward_gens, tmp_path):
 def test_label_quality_scores_the_labels_each_icrg_trains_on(full, reward_gens, tmp_path):
     import sys
 
-    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "scripts"))
     import icrg_label_quality
 
     rewards = darkroom_data("reward_trajectory", root_dir=full.root_dir, **{k: v for k, v in TINY.items()

@@ -40,7 +40,7 @@ from icprl_lightning.data.settings import RewardTrajectories, StepPreferences, T
 from icprl_lightning.preferences import AgreementTally, expected_agreement, label_agreement, sample_preferences
 from icprl_lightning.validation import HyperparameterError
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = dict(trajectories_per_task=4, val_trajectories_per_task=2, eval_contexts_per_task=1, calibration_episodes=3,
             reference_episodes=3, n_train_tasks=10, n_test_tasks=5, progress=False)
 

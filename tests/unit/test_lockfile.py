@@ -22,7 +22,7 @@ from packaging.version import Version
 
 tomllib = pytest.importorskip("tomllib", reason="reading pyproject.toml needs Python 3.11 (the lock's Python)")
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 LOCK = REPO / "requirements.lock"
 LOCKED_EXTRAS = ("metaworld", "dev")
 

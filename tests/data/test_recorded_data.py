@@ -19,7 +19,7 @@ from icprl_lightning.data.importer import import_preferences
 from icprl_lightning.data.recorded import RecordedPreferenceDataModule
 from icprl_lightning.data.store import DatasetError
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 MOVES = np.array([[0, 0], [0, 1], [0, -1], [-1, 0], [1, 0]])  # stay, up, down, left, right
 SIZE, T, N_ACTIONS = 5, 12, 5
 

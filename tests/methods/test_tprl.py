@@ -26,7 +26,7 @@ from icprl_lightning.methods.losses import (
 )
 from icprl_lightning.methods.reward_gen import RewardGenModule
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 TPRL_TINY = dict(trajectories_per_task=3, val_trajectories_per_task=2, eval_contexts_per_task=2,
                  calibration_episodes=2, progress=False, batch_size=8)
 SIZES = dict(n_layer=1, n_embd=16, n_head=2)

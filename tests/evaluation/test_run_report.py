@@ -22,7 +22,7 @@ from icprl_lightning.callbacks.run_logs import CSVMetrics, wandb_in_run_director
 from icprl_lightning.cli import run_cli
 from icprl_lightning.evaluation.run_report import main as report_main
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = [*TINY_DATA, *TINY_MODEL, "--trainer.max_epochs", "2", "--trainer.limit_train_batches", "4",
         "--trainer.log_every_n_steps", "1",
         "--trainer.enable_progress_bar", "false", "--trainer.enable_model_summary", "false"]

@@ -21,7 +21,7 @@ from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
 from icprl_lightning.models.estimator import InContextRewardModel
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "scripts"))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "scripts"))
 import reward_gen_quality  # noqa: E402
 
 SETTING = dict(trajectories_per_task=3, val_trajectories_per_task=2, eval_contexts_per_task=2, calibration_episodes=2,

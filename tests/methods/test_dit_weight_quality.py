@@ -11,7 +11,7 @@ from factories import cli_data_args
 
 from icprl_lightning.cli import run_cli
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO / "scripts"))
 import dit_weight_quality  # noqa: E402
 

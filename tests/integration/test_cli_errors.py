@@ -12,7 +12,7 @@ import pytest
 
 from icprl_lightning.cli import SUBCOMMANDS, main
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 CONFIG = str(REPO / "configs/icpo_darkroom.yaml")
 
 

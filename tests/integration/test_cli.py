@@ -122,4 +122,4 @@ def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, mo
 
 
 def _repo() -> str:
-    return str(Path(__file__).resolve().parents[1])
+    return str(Path(__file__).resolve().parents[2])

@@ -20,7 +20,7 @@ from factories import tiny_darkroom_args
 
 from icprl_lightning import load_agent
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ROWS, BATCH = 80 * 3, 40  # tiny DarkRoom: 80 training tasks × 3 contexts; 120 rows a rank = 3 whole batches
 
 

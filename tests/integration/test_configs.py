@@ -25,12 +25,12 @@ from lightning.pytorch.callbacks import EarlyStopping
 
 from icprl_lightning.cli import run_cli
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 BASES = sorted(p.relative_to(REPO).as_posix() for p in REPO.glob("configs/*.yaml"))
 OVERLAYS = sorted(p.relative_to(REPO).as_posix() for p in REPO.glob("configs/paper/*.yaml"))
 # A DataModule over recorded data reads its dataset when built (there is no generator): these configs are
 # instantiated on an imported dataset by the test named here.
-NEEDS_RECORDED_DATA = {"configs/recorded_icpo.yaml": "tests/test_recorded_data.py::test_import_fit_icpo_and_deploy"}
+NEEDS_RECORDED_DATA = {"configs/recorded_icpo.yaml": "tests/data/test_recorded_data.py::test_import_fit_icpo_and_deploy"}
 # ICRG reads its stage-1 checkpoint when built; an architecture instead lets it build without the file.
 NO_CHECKPOINT = ["--model.init_args.reward_gen_hparams",
                  json.dumps({"n_layer": 1, "n_embd": 8, "n_head": 1, "max_context": 1000, "dropout": 0.0})]

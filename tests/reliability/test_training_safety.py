@@ -35,7 +35,7 @@ from icprl_lightning.callbacks.run_directory import unique_logger_versions
 from icprl_lightning.cli import main, run_cli
 from icprl_lightning.methods.icpo import ICPOModule
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = [*TINY_DATA, *TINY_MODEL]
 STEPS = 2  # training batches per epoch
 

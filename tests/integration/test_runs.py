@@ -27,7 +27,7 @@ from factories import TINY_DATA, TINY_MODEL
 
 from icprl_lightning.cli import run_cli
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 LOGGERS = {
     "off": lambda out: ["--trainer.logger", "false", "--trainer.default_root_dir", str(out)],
     "wandb": lambda out: ["--trainer.logger.init_args.save_dir", str(out)],  # the configs' WandbLogger

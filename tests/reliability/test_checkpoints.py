@@ -33,7 +33,7 @@ from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=10)
 SIZES = dict(n_layer=1, n_embd=16, n_head=2)
 pytestmark = pytest.mark.filterwarnings("ignore:Detected pickle protocol 4:UserWarning")  # the legacy pickle

@@ -22,7 +22,7 @@ from icprl_lightning.checkpoints import CHECKSUM_KEY, CLASS_KEY, SEAL_KEY, check
 from icprl_lightning.cli import main
 from icprl_lightning.methods.icpo import ICPOModule
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 CONFIG = str(REPO / "configs/icpo_darkroom.yaml")
 
 

@@ -19,7 +19,7 @@ from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.online import OnlineAgent
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 import online_bandit  # noqa: E402
 import online_mdp  # noqa: E402
 

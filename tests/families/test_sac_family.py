@@ -206,7 +206,7 @@ def test_scale_curves_tabulate_and_plot_what_is_there(tmp_path):
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     import reach_scale_curves
 
     def row(value):
@@ -243,7 +243,7 @@ def test_from_scratch_curve_normalizes_per_goal_and_finds_the_crossing(tmp_path,
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     import sac_from_scratch_curve
 
     def run(returns):  # uniform −40, expert −10: normalized (R + 40) / 30
@@ -270,7 +270,7 @@ def test_label_truth_script_scores_pairs_against_mujoco(monkeypatch):
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     import sac_label_truth
 
     out = sac_label_truth.measure(episodes=1, every=50, seed=0)
@@ -283,7 +283,7 @@ def test_action_balance_separates_a_biased_rejected_side(tmp_path):
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     import ipref_action_balance
 
     rng = np.random.default_rng(0)
@@ -304,7 +304,7 @@ def test_action_balance_by_distance_splits_near_and_far_steps(tmp_path):
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     import ipref_action_balance
 
     split = tmp_path / "train"

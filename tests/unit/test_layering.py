@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[1] / "icprl_lightning"
+PACKAGE = Path(__file__).resolve().parents[2] / "icprl_lightning"
 
 # lowest first; a module's layer is the first entry its dotted name starts with
 LAYERS = [

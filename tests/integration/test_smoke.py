@@ -1,6 +1,6 @@
 """``make smoke`` stays a two-minute run of the whole pipeline, writing only under runs/ and data/.
 
-The smoke config is instantiated with every other config (tests/test_configs.py); here: its training stays
+The smoke config is instantiated with every other config (tests/integration/test_configs.py); here: its training stays
 within the step budget its two minutes were measured at, and the Makefile recipe trains on it and deploys
 its last checkpoint through ``icprl evaluate`` with an explicit output under the smoke run's directory.
 """
@@ -15,7 +15,7 @@ import yaml
 
 from icprl_lightning.cli import run_cli
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 # make smoke measured at 250 optimizer steps (2 epochs of 4000 contexts): ~90 CPU-seconds in all
 MAX_STEPS = 250
 

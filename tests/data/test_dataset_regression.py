@@ -1,5 +1,5 @@
 """Same config, same bytes: every DarkRoom and bandit config's dataset against the checksums recorded
-before the task-family refactor (tests/data/dataset_checksums.json, made by
+before the task-family refactor (tests/fixtures/dataset_checksums.json, made by
 ``python scripts/dataset_checksums.py CONFIGS...`` at commit 8ed6734's generators).
 
 The Meta-World entries of that file take minutes each to regenerate (MuJoCo); they were compared with
@@ -14,12 +14,12 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO / "scripts"))
 
 from dataset_checksums import checksums  # noqa: E402
 
-REFERENCE = json.loads((REPO / "tests/data/dataset_checksums.json").read_text())
+REFERENCE = json.loads((REPO / "tests/fixtures/dataset_checksums.json").read_text())
 FAST = sorted(k for k in REFERENCE if "metaworld" not in k and "paper" not in k)
 PAPER = sorted(k for k in REFERENCE if "metaworld" not in k and "paper" in k)
 
