@@ -27,6 +27,7 @@ from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.data.settings import StepPreferences
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.config import TransformerConfig
 
 try:  # run as a script (benchmarks/ on sys.path) or as a module
     import dpt_reference
@@ -82,8 +83,8 @@ def main() -> None:
     for name in args.sizes:
         n_layer, n_embd, n_head, ref_size = SIZES[name]
         torch.manual_seed(0)
-        model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100, n_layer=n_layer,
-                           n_embd=n_embd, n_head=n_head).eval()
+        model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100,
+                           backbone=TransformerConfig(n_layer=n_layer, n_embd=n_embd, n_head=n_head)).eval()
         cached = run(model, context, goals, fam, use_cache=True)
         full = run(model, context, goals, fam, use_cache=False)
         results[name] = {"kv_cache": round(cached), "no_cache": round(full), "speedup": round(cached / full, 1)}

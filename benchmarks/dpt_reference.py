@@ -1,4 +1,4 @@
-"""The speed reference of issue 12: DPT's published DarkRoom training and evaluation setup, rebuilt here.
+"""The speed reference: DPT's published DarkRoom training and evaluation setup, rebuilt here.
 
 Its published configuration: a Hugging Face GPT-2 backbone with one attention head and no dropout, one
 linear embedding of each (s, a, s', r) transition, the query state as the first of 1 + H = 101 causal

@@ -26,15 +26,16 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 METRIC = "val/darkroom/medium/return"
 MERGED_OBJECTIVE = ("--model.init_args.pair_source", "next", "--data.init_args.pairs", "false")
+ONE_HEAD = ("--model.init_args.backbone.n_head", "1")
 VARIANTS = {
     "4 heads, all 100 queries (the config's default)": (),
-    "1 head, all 100 queries": ("--model.init_args.n_head", "1"),
-    "1 head, 25 queries per context": ("--model.init_args.n_head", "1", "--model.init_args.queries_per_context", "25"),
+    "1 head, all 100 queries": ONE_HEAD,
+    "1 head, 25 queries per context": (*ONE_HEAD, "--model.init_args.queries_per_context", "25"),
     # the context's own next comparison, scored in the appended layout: the merged layout's objective at the
     # appended layout's speed, which separates what the objective changes from what the layout changes
     "4 heads, appended layout, pair_source next": MERGED_OBJECTIVE,
     "4 heads, merged layout": ("--config", "configs/overlays/merged_layout.yaml"),
-    "1 head, merged layout": ("--config", "configs/overlays/merged_layout.yaml", "--model.init_args.n_head", "1"),
+    "1 head, merged layout": ("--config", "configs/overlays/merged_layout.yaml", *ONE_HEAD),
     # the context in its stored episode order in training, as the deployed agent reads it
     "4 heads, merged layout, episode order": ("--config", "configs/overlays/merged_layout.yaml",
                                               "--model.init_args.pair_steps", "aligned"),

@@ -49,7 +49,10 @@ from functools import partial
 import torch
 import torch.nn.functional as F
 
+from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.samples import ContextSamples
 
 try:  # run as a script (benchmarks/ on sys.path) or as a module
     import dpt_reference
@@ -75,14 +78,12 @@ SIZES = {
 }
 
 
-def batch_for(b: int, t: int = H) -> dict[str, torch.Tensor]:
+def batch_for(b: int, t: int = H) -> ContextSamples:
     g = torch.Generator().manual_seed(0)
-    ctx = {"states": torch.randint(0, 10, (b, t, 2), generator=g).float(),
-           "actions": torch.randint(0, 5, (b, t), generator=g), "alt_actions": torch.randint(0, 5, (b, t), generator=g),
-           "preferred": torch.randint(0, 2, (b, t), generator=g).float()}
-    out = dict(ctx)
-    out.update({f"pair_{k}": v.roll(1, 0) for k, v in ctx.items()})
-    return out
+    ctx = StepPreferenceContext(torch.randint(0, 10, (b, t, 2), generator=g).float(),
+                                torch.randint(0, 5, (b, t), generator=g), torch.randint(0, 5, (b, t), generator=g),
+                                torch.randint(0, 2, (b, t), generator=g).float())
+    return ContextSamples(ctx, pair=ctx.map(lambda x: x.roll(1, 0)))
 
 
 def name_of(variant: dict) -> str:
@@ -132,8 +133,8 @@ def floor_step(size: dict, bf16: bool) -> Callable[[], None]:
 
 def icpo_step(size: dict, variant: dict) -> Callable[[], None]:
     torch.manual_seed(0)
-    model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=H, n_layer=size["n_layer"],
-                       n_embd=size["n_embd"], n_head=variant["heads"], beta=0.1, lam=1.0,
+    backbone = TransformerConfig(n_layer=size["n_layer"], n_embd=size["n_embd"], n_head=variant["heads"])
+    model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=H, backbone=backbone, beta=0.1, lam=1.0,
                        queries_per_context=variant.get("k"),
                        **(dict(layout="merged", pair_source="next") if variant.get("merged") else {})).train()
     optimizer = model.configure_optimizers()

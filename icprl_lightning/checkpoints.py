@@ -19,6 +19,12 @@ A checkpoint is untrusted input, so reading one never runs code from it:
 * Every floating tensor of the weights and the optimizer state must be finite: a NaN moment would resume
   into an all-NaN model.
 
+Hyperparameters are read through ``hyperparameters``, which gathers the sizes that earlier versions saved flat
+(``n_layer``, ``n_embd``, ``n_head``, ``dropout``, also inside ICRG's ``reward_gen_hparams`` and
+``cross_fit_hparams``) into the ``backbone`` dict every method now takes (``models/config.py``). It returns a new
+dict after the checks above and never changes the file's own entries, so the checksum and the seal still cover
+exactly what was saved.
+
 ``checkpoint_for_lightning`` is the one door through which the CLI hands Lightning a ``ckpt_path``: it
 checks the parsed path (however it was spelled), verifies the file as above and gives Lightning a private
 copy of exactly the verified contents, so Lightning never unpickles a file this module has not read.
@@ -53,6 +59,7 @@ METHODS = ("icprl_lightning.methods.dpt.DPTModule", "icprl_lightning.methods.dpt
            "icprl_lightning.methods.icpo.ICPOModule", "icprl_lightning.methods.reward_gen.RewardGenModule",
            "icprl_lightning.methods.dit.DITModule", "icprl_lightning.methods.icrg.ICRGModule")
 LIGHTNING_SPECIAL_PATHS = ("best", "last", "hpc")  # ``ckpt_path`` values the Trainer resolves itself
+FLAT_BACKBONE = ("n_layer", "n_embd", "n_head", "dropout")  # the backbone's sizes, as earlier versions saved them
 
 
 def class_path(cls: type) -> str:
@@ -258,13 +265,34 @@ def verify(ckpt: dict[str, Any], path: str | Path, expected: type | None = None,
     return ckpt
 
 
+def _gather_backbone(hparams: Any) -> Any:
+    """``hparams`` with flat backbone sizes (``FLAT_BACKBONE``) gathered into a ``backbone`` dict (a new dict);
+    anything else as it is."""
+    if not isinstance(hparams, dict) or "backbone" in hparams or not any(k in hparams for k in FLAT_BACKBONE):
+        return hparams
+    out = {k: v for k, v in hparams.items() if k not in FLAT_BACKBONE}
+    out["backbone"] = {k: hparams[k] for k in FLAT_BACKBONE if k in hparams}
+    return out
+
+
+def hyperparameters(ckpt: dict[str, Any]) -> dict[str, Any]:
+    """A verified checkpoint's hyperparameters as this version's constructors take them (a new dict): flat sizes
+    gathered into ``backbone``, also in the RewardGen architectures an ICRG checkpoint holds."""
+    hparams = _gather_backbone(dict(ckpt["hyper_parameters"]))
+    if "reward_gen_hparams" in hparams:
+        hparams["reward_gen_hparams"] = _gather_backbone(hparams["reward_gen_hparams"])
+    if isinstance(hparams.get("cross_fit_hparams"), list):
+        hparams["cross_fit_hparams"] = [_gather_backbone(h) for h in hparams["cross_fit_hparams"]]
+    return hparams
+
+
 def build_module(ckpt: dict[str, Any], path: str | Path, map_location: str | torch.device = "cpu"):
     """The LightningModule of a checkpoint from ``read_checkpoint``, in eval mode."""
     cls = method_classes()[ckpt[CLASS_KEY]]
     # as load_from_checkpoint does: only the class's own arguments (a base class's save_hyperparameters
     # also records its own, e.g. context_kind, and the CLI adds _class_path / _instantiator)
     accepted = inspect.signature(cls.__init__).parameters
-    hparams = {k: v for k, v in ckpt["hyper_parameters"].items() if k in accepted and k != "self"}
+    hparams = {k: v for k, v in hyperparameters(ckpt).items() if k in accepted and k != "self"}
     try:
         module = cls(**hparams)
         module.load_state_dict(ckpt["state_dict"], strict=True)

@@ -263,6 +263,9 @@ class RewardTrajectoryContext(_Context):
             check_floats("rewards", self.rewards, (b, t), f"[B={b}, T={t}] float32"))
 
 
+# Any of the four typed contexts: the type of every ``context`` a model, a method or an agent takes.
+Context = StepPreferenceContext | RewardContext | TrajectoryPreferenceContext | RewardTrajectoryContext
+
 CONTEXT_TYPES: dict[str, type[_Context]] = {
     "step_preference": StepPreferenceContext,
     "reward": RewardContext,
@@ -277,11 +280,8 @@ def context_fields(kind: str) -> tuple[str, ...]:
     return tuple(f.name for f in fields(CONTEXT_TYPES[kind]))
 
 
-def context_from_batch(kind: str, batch: dict[str, Tensor], prefix: str = ""):
-    """Build the typed context of ``kind`` from a batch dict (fields named as the dataclass, + ``prefix``).
-
-    Optional fields (those with a default, e.g. ICRG's behavior trajectory) are taken when present.
-    """
+def context_from_fields(kind: str, values: dict[str, Tensor]) -> Context:
+    """The typed context of ``kind`` from a dict of its fields (named as the dataclass's); optional fields (those
+    with a default, e.g. ICRG's behavior trajectory) are taken when present."""
     cls = CONTEXT_TYPES[kind]
-    return cls(**{f.name: batch[prefix + f.name] for f in fields(cls)
-                  if f.default is MISSING or prefix + f.name in batch})
+    return cls(**{f.name: values[f.name] for f in fields(cls) if f.default is MISSING or f.name in values})

@@ -20,7 +20,7 @@ DPT, DP²T and ICPO act with the argmax of T_θ(· | s_h, D) by default (DIT and
 samples a_h ~ T_θ(· | s_h, D) as the paper's text writes it. Greedy is their default because ICPO's
 policy is only as sharp as its β makes it: for λ = 1 the optimum is T ∝ exp(A*/(β τ)) (τ the label
 temperature), about softmax(A*) at β = τ = 1, whose samples are noisy where advantages differ by 1–2
-(DarkRoom); a smaller β samples almost as well as the mode (docs/RESULTS.md, "β and λ").
+(DarkRoom); a smaller β samples almost as well as the mode (``icprl reproduce darkroom_lambda_beta``).
 Continuous actions are the policy mean. Wrong shapes, dtypes or values (labels outside {0, 1}, NaN/inf,
 an empty context, bool or out-of-range actions) raise ``ValueError`` naming the field and what it expects;
 float64 inputs are converted to float32 (``contexts.py`` lists the rules). Calling ``act`` before
@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from icprl_lightning.contexts import CONTEXT_TYPES, ActionSpec, as_tensor, check_floats
+from icprl_lightning.contexts import CONTEXT_TYPES, ActionSpec, Context, as_tensor, check_floats
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.models.transformer import KVCache
 
@@ -55,14 +55,14 @@ class Agent:
         self.use_cache = use_cache
         # torch.compile of the per-step query (one token against the cache): its small ops fused into a few
         # kernels: 1.4-2x a small model's env-steps/s at 100 tasks, after a one-time compile per context length
-        # (benchmarks/deployment_throughput.py --compile; docs/RESULTS.md, "Speed")
+        # (benchmarks/deployment_throughput.py --compile)
         if compile and not use_cache:
             raise ValueError("compile=True compiles the cached query step: it needs use_cache=True")
         self._compiled_query = torch.compile(policy.query, dynamic=False) if compile else None
         self.generator: torch.Generator | None = None
         if seed is not None:
             self.generator = torch.Generator(device=self.device).manual_seed(seed)
-        self.context = None
+        self.context: Context | None = None
         self.cache: KVCache | None = None
 
     @property
@@ -97,7 +97,7 @@ class Agent:
         return CONTEXT_TYPES[self.context_kind]
 
     @torch.no_grad()
-    def reset(self, context) -> None:
+    def reset(self, context: Context) -> None:
         """Condition on a new batch of contexts (encoded once, at the first ``act``).
 
         The context is validated and normalized (``contexts.py``: dtypes converted where lossless, invalid

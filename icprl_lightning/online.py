@@ -180,6 +180,8 @@ class OnlineAgent(Agent):
     the slow reference). ``greedy`` and ``seed`` act as in ``Agent``; the seed also drives the pair rule.
     """
 
+    context: StepPreferenceContext | None
+
     def __init__(self, policy: InContextPolicy, greedy: bool = True, use_cache: bool = True, seed: int | None = None,
                  pair_rule: PairRule | str | None = None) -> None:
         if policy.context_kind != "step_preference":

@@ -1,39 +1,57 @@
 """What every in-context method shares: the policy network T_θ(a | s, D), the optimizer, deployment.
 
-A method subclass defines ``loss(batch) -> (loss, metrics)`` — its training objective from the paper —
-and inherits logging, Adam, checkpoint metadata for ``load_agent`` and ``make_agent``.
-The environment's sizes (``state_dim``, ``action_dim``, ``discrete``, ``max_context``) are linked from
-the DataModule by the CLI, so a config names them once.
+A method subclass defines ``loss(batch) -> (loss, metrics)`` — its training objective from the paper, read off
+the typed samples of ``samples.py`` — and inherits logging, Adam, checkpoint metadata for ``load_agent`` and
+``make_agent``. The environment's sizes (``state_dim``, ``action_dim``, ``discrete``, ``max_context``) are linked
+from the DataModule by the CLI, so a config names them once; the network's come whole as ``backbone``
+(``models/config.py``), passed on by keyword.
 """
 
 from __future__ import annotations
+
+import inspect
 
 import lightning as L
 import torch
 from torch import Tensor
 
-from icprl_lightning.contexts import ActionSpec, context_from_batch
+from icprl_lightning.contexts import ActionSpec, Context
+from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
 from icprl_lightning.models.normalization import InputNormalizer
 from icprl_lightning.models.policy import LAYOUTS, InContextPolicy
-from icprl_lightning.validation import check_choice, check_int, check_kind, check_sizes, check_transformer
+from icprl_lightning.samples import Samples
+from icprl_lightning.validation import check_choice, check_int, check_kind, check_optimizer, check_sizes
 
 
 def fit_input_normalizers(module: L.LightningModule) -> None:
-    """Fits every input normalizer of ``module`` that is not fitted yet on the fields of the DataModule's training
-    split that its batches serve (once: a resumed or fine-tuned fit, or a frozen stage loaded from its checkpoint,
-    keeps its statistics). Every rank reads the whole split, so all agree. Call it from ``on_fit_start``."""
+    """Fits every input normalizer of ``module`` that is not fitted yet on what the DataModule hands over for it:
+    the training split's arrays of the fields its batches serve (``PreferenceData.train_arrays``; so a preference
+    method never sees the scale of a stored reward). Once: a resumed or fine-tuned fit, or a frozen stage loaded
+    from its checkpoint, keeps its statistics. Every rank reads the whole split, so all agree. Call it from
+    ``on_fit_start``."""
+    from icprl_lightning.data_contract import PreferenceData
+
     normalizers = [m for m in module.modules() if isinstance(m, InputNormalizer) and not m.fitted]
     if not normalizers:
         return
-    datamodule = module.trainer.datamodule
-    dataset = getattr(datamodule, "dataset", None)
-    if dataset is None or not hasattr(datamodule, "batch_fields"):
-        raise ValueError(f"{type(module).__name__}: normalize_inputs fits its statistics on the DataModule's stored "
-                         "training split (its ``dataset`` and ``batch_fields``), and this DataModule has none")
-    # only the fields the batches serve: a preference method must not see the scale of stored rewards
-    split = {k: dataset["train"][k] for k in datamodule.batch_fields()}
+    data = module.trainer.datamodule
+    if not isinstance(data, PreferenceData):
+        raise ValueError(f"{type(module).__name__}: normalize_inputs fits its statistics on the training arrays a "
+                         "DataModule of the data contract hands over (icprl_lightning.data_contract.PreferenceData."
+                         f"train_arrays), and this fit's DataModule is {type(data).__name__}")
+    split = data.train_arrays()
     for normalizer in normalizers:
         normalizer.fit(split)
+
+
+def save_backbone(module: L.LightningModule, backbone: TransformerConfig) -> TransformerConfig:
+    """Save ``module``'s constructor arguments as its hyperparameters, the backbone as a plain dict (a checkpoint is
+    read without unpickling any class, ``checkpoints.py``); returns the backbone as a ``TransformerConfig`` (given as
+    one, or as the dict a checkpoint holds)."""
+    config = TransformerConfig.coerce(backbone)
+    module.save_hyperparameters(frame=inspect.currentframe().f_back)
+    module.save_hyperparameters({**module.hparams, "backbone": config.as_dict()})
+    return config
 
 
 class InContextModule(L.LightningModule):
@@ -47,26 +65,34 @@ class InContextModule(L.LightningModule):
     needs_pairs = False
     needs_query_labels = False
 
-    def __init__(self, context_kind: str, state_dim: int, action_dim: int, discrete: bool, max_context: int,
-                 n_layer: int = 3, n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, queries_per_context: int | None = None, normalize_inputs: bool = False,
+    def __init__(self, context_kind: str, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
+                 backbone: TransformerConfig = DEFAULT_BACKBONE, lr: float = 3e-4, weight_decay: float = 0.0,
+                 queries_per_context: int | None = None, normalize_inputs: bool = False,
                  layout: str = "appended") -> None:
         owner = type(self).__name__
         check_kind(owner, "context_kind", context_kind)
         check_sizes(owner, state_dim, action_dim)
-        check_transformer(owner, n_layer, n_embd, n_head, dropout, lr, weight_decay, max_context)
+        check_int(owner, "max_context", max_context, 1)
+        check_optimizer(owner, lr, weight_decay)
         if queries_per_context is not None:
             check_int(owner, "queries_per_context", queries_per_context, 1)
         check_choice(owner, "normalize_inputs", normalize_inputs, (True, False))
         check_choice(owner, "layout", layout, LAYOUTS)
         super().__init__()
-        self.save_hyperparameters()
+        self.backbone = save_backbone(self, backbone)
         self.context_kind = context_kind
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
-        self.policy = InContextPolicy(context_kind, state_dim, self.action_spec, n_layer, n_embd, n_head,
-                                      max_context, dropout, normalize_inputs, layout)
+        self.policy = InContextPolicy(context_kind, state_dim, self.action_spec, self.backbone, max_context,
+                                      normalize_inputs, layout)
 
     def on_fit_start(self) -> None:
+        """Checks this model against the data it is fitted on (``validation.check_pairing``: what ``icprl fit``
+        checks, here for a fit without the CLI too), then fits the input statistics on what the data hands over."""
+        from icprl_lightning.data_contract import PreferenceData
+        from icprl_lightning.validation import check_pairing
+
+        if isinstance(self.trainer.datamodule, PreferenceData):
+            check_pairing(self, self.trainer.datamodule)
         fit_input_normalizers(self)
 
     @property
@@ -74,11 +100,8 @@ class InContextModule(L.LightningModule):
         """The context kinds of the training data (the policy's own context kind)."""
         return (self.context_kind,)
 
-    def forward(self, context, query_states: Tensor, visible: Tensor) -> Tensor:
+    def forward(self, context: Context, query_states: Tensor, visible: Tensor) -> Tensor:
         return self.policy(context, query_states, visible)
-
-    def context(self, batch: dict[str, Tensor], prefix: str = ""):
-        return context_from_batch(self.context_kind, batch, prefix)
 
     def query_positions(self, length: int, device: torch.device) -> Tensor:
         """The query positions a step scores, sorted: all ``length`` of them, or in training
@@ -93,22 +116,22 @@ class InContextModule(L.LightningModule):
             return torch.arange(length, device=device)
         return torch.randperm(length, device=device)[:k].sort().values
 
-    def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
+    def loss(self, batch: Samples) -> tuple[Tensor, dict[str, Tensor]]:
         raise NotImplementedError
 
-    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
+    def training_step(self, batch: Samples, batch_idx: int) -> Tensor:
         loss, metrics = self.loss(batch)
-        self.log("train/loss", loss, prog_bar=True)
-        self.log_dict({f"train/{k}": v for k, v in metrics.items()})
+        self.log("train/loss", loss, prog_bar=True, batch_size=batch.batch_size)
+        self.log_dict({f"train/{k}": v for k, v in metrics.items()}, batch_size=batch.batch_size)
         return loss
 
-    def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+    def validation_step(self, batch: Samples, batch_idx: int) -> None:
         loss, metrics = self.loss(batch)
         # sync_dist: under several processes the epoch's value is the batch-weighted mean over every rank's
         # shard (one all-reduce per metric at the epoch's end), so ModelCheckpoint sees the same val/loss on
         # each rank; a no-op in one process. Train metrics are per step and stay rank 0's own.
-        self.log("val/loss", loss, prog_bar=True, sync_dist=True)
-        self.log_dict({f"val/{k}": v for k, v in metrics.items()}, sync_dist=True)
+        self.log("val/loss", loss, prog_bar=True, sync_dist=True, batch_size=batch.batch_size)
+        self.log_dict({f"val/{k}": v for k, v in metrics.items()}, sync_dist=True, batch_size=batch.batch_size)
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
         return torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)

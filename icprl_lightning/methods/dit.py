@@ -18,14 +18,14 @@ eq. dit-loss); afterwards only the policy does (``loss`` is eq. dit-optimization
 Advantages are centred on their batch mean and divided by their batch standard deviation before exp(Â/η)
 (AWR's normalization; ``losses.standardized_advantages``), so η means the same for true rewards and
 RewardGen's estimates; the weight is clipped at ``max_weight``. Without the centring
-(``center_advantages: false``, the behavior before issue 17) an offset of Q̂ over V̂ of a few standard
+(``center_advantages: false``) an offset of Q̂ over V̂ of a few standard
 deviations clips every weight and DIT becomes behavior cloning. Logged in the policy phase:
 ``advantage_offset`` (the raw batch mean of Q̂ − V̂ in units of its std: what centring removes),
 ``clipped_fraction``, ``mean_weight`` and ``weight_std`` (the spread of exp(Â/η)).
 
 ``advantage: td`` replaces the paper's Q̂ − V̂ by V̂'s one-step TD error (1 − γ) r_h + γ V̂(s_{h+1}) − V̂(s_h)
 (``losses.td_advantages``; Q̂ is still fitted, unused). On DarkRoom the paper's form does not tell the
-behavior's good actions from its bad ones (AUC ≈ 0.5, ``scripts/dit_weight_quality.py``): Q̂ and V̂ are two
+behavior's good actions from its bad ones (AUC ≈ 0.5, ``icprl analyze dit-weights``): Q̂ and V̂ are two
 regressions of the same noisy return whose difference is mostly their errors, while the TD error sees the
 action's effect in the next state.
 
@@ -33,18 +33,20 @@ action's effect in the next state.
 actually collected after the action, against V̂'s estimate for the state (``losses.return_to_go_advantages``).
 V̂ only serves as a baseline here, so its errors shift every action of a state alike and cannot reorder them;
 the TD error instead needs V̂(s_{h+1}) − V̂(s_h) to resolve one action's effect, which on Reach (a 1 cm move
-per step) is below V̂'s error. Measured (docs/RESULTS.md): on Reach it is within noise of Q̂ − V̂; on DarkRoom it
-ranks single actions worse than the TD error but makes greedy ICRG on bounded rewards steadier.
+per step) is below V̂'s error. Measured (``icprl reproduce metaworld_dit_advantages``, ``darkroom_return_to_go``):
+on Reach it is within noise of Q̂ − V̂; on DarkRoom it ranks single actions worse than the TD error but makes
+greedy ICRG on bounded rewards steadier.
 
 ``value_auxiliary`` c > 0 (our change, not the paper's) adds c · mean((v_θ(s_h | D) − (1 − γ) G_h)²) / var((1 − γ) G)
 (the batch's unexplained fraction of the return's variance, 1 − R², so that c weighs it against the policy loss at
 any reward scale) to every epoch's loss, v_θ a linear head on the *policy's* transformer outputs at its query
 tokens (``policy_value_head``, unused at deployment). On Reach the behavior's actions hardly depend on the goal, so
-imitating them, however weighted, gives the policy no reason to read its context (docs/RESULTS.md: the same return
-with another goal's context); predicting the return-to-go does, since the reward is the distance to the goal. The
-auxiliary regression is meant to make the policy's own features carry the goal for its action head; the policy
-trains from the first epoch. Measured on Reach (docs/RESULTS.md, ``metaworld_dit_goal_signal``): the head ends at
-1 − R² = 0.58 (validation, last epoch) and the policy still returns the same with another goal's context.
+imitating them, however weighted, gives the policy no reason to read its context (``icprl reproduce
+metaworld_dit_goal_signal``: the same return with another goal's context); predicting the return-to-go does,
+since the reward is the distance to the goal. The auxiliary regression is meant to make the policy's own features
+carry the goal for its action head; the policy trains from the first epoch. Measured on Reach (the same table):
+the head ends at 1 − R² = 0.58 (validation, last epoch) and the policy still returns the same with another goal's
+context.
 
 ``advantage: oracle`` (an oracle baseline, like the true rewards themselves) weights each behavior action by the
 family oracle's optimal advantage A*(s_h, a_h), served with the data (``RewardTrajectories(oracle_advantages=True)``,
@@ -79,7 +81,9 @@ from icprl_lightning.methods.losses import (
     standardized_advantages,
     td_advantages,
 )
+from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
 from icprl_lightning.models.estimator import InContextEstimator
+from icprl_lightning.samples import Samples
 from icprl_lightning.validation import check_choice, check_int, check_interval, check_nonnegative, check_positive
 
 # Â = Q̂ − V̂ (paper eq. dit-advantage); "td": r_h + γ V̂(s_{h+1}) − V̂(s_h) (losses.td_advantages);
@@ -106,11 +110,11 @@ def unexplained_variance(predictions: Tensor, targets: Tensor) -> Tensor:
 class DITModule(InContextModule):
     """DIT: Q̂, V̂ and the policy T^R(a | s, D^R), all conditioned on a reward trajectory (see module docstring)."""
 
-    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, gamma: float = 0.95,
-                 eta: float = 1.0, max_weight: float = 20.0, value_epochs: int = 2, n_layer: int = 3,
-                 n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, center_advantages: bool = True, advantage: str = "q_minus_v",
-                 value_auxiliary: float = 0.0, normalize_inputs: bool = False) -> None:
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *, gamma: float = 0.95,
+                 eta: float = 1.0, max_weight: float = 20.0, value_epochs: int = 2,
+                 backbone: TransformerConfig = DEFAULT_BACKBONE, lr: float = 3e-4, weight_decay: float = 0.0,
+                 center_advantages: bool = True, advantage: str = "q_minus_v", value_auxiliary: float = 0.0,
+                 normalize_inputs: bool = False) -> None:
         owner = type(self).__name__
         check_interval(owner, "gamma", gamma, 0.0, 1.0)
         check_positive(owner, "eta", eta)
@@ -119,27 +123,22 @@ class DITModule(InContextModule):
         check_choice(owner, "center_advantages", center_advantages, (True, False))
         check_choice(owner, "advantage", advantage, ADVANTAGES)
         check_nonnegative(owner, "value_auxiliary", value_auxiliary)
-        super().__init__("reward_trajectory", state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
-                         dropout, lr, weight_decay, normalize_inputs=normalize_inputs)
+        super().__init__("reward_trajectory", state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
+                         weight_decay=weight_decay, normalize_inputs=normalize_inputs)
         estimator = dict(context_kind="reward_trajectory", state_dim=state_dim, action_spec=self.action_spec,
-                         n_layer=n_layer, n_embd=n_embd, n_head=n_head, max_context=max_context, dropout=dropout,
-                         normalize_inputs=normalize_inputs)
+                         backbone=self.backbone, max_context=max_context, normalize_inputs=normalize_inputs)
         self.q_value = InContextEstimator(with_action=True, **estimator)
         self.v_value = InContextEstimator(with_action=False, **estimator)
-        self.policy_value_head = nn.Linear(n_embd, 1) if value_auxiliary > 0 else None
+        self.policy_value_head = nn.Linear(self.backbone.n_embd, 1) if value_auxiliary > 0 else None
 
     def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None, compile: bool = False):
         """Samples a ~ T^R(· | s, D) by default, the paper's deployment: an advantage-weighted clone of the behavior
         is a distribution over its actions, whose argmax can get stuck (e.g. staying put away from the goal)."""
         return super().make_agent(greedy=greedy, use_cache=use_cache, seed=seed, compile=compile)
 
-    def labeled_trajectories(self, batch: dict[str, Tensor]) -> tuple[RewardTrajectoryContext, RewardTrajectoryContext]:
-        """The sample's two trajectories with their rewards (here the true ones)."""
-        if "rewards_a" not in batch:
-            raise KeyError(f"{type(self).__name__} trains on reward-labeled trajectories: use context_kind "
-                           "reward_trajectory data (ICRGModule labels preference data with RewardGen)")
-        return (RewardTrajectoryContext(batch["states_a"], batch["actions_a"], batch["rewards_a"]),
-                RewardTrajectoryContext(batch["states_b"], batch["actions_b"], batch["rewards_b"]))
+    def labeled_trajectories(self, batch: Samples) -> tuple[RewardTrajectoryContext, RewardTrajectoryContext]:
+        """The sample's two trajectories with their rewards (here the true ones, ``RewardTrajectorySamples``)."""
+        return batch.trajectory_a, batch.trajectory_b
 
     @property
     def policy_phase(self) -> bool:
@@ -165,16 +164,12 @@ class DITModule(InContextModule):
         """Fields beyond the reward trajectories that the loss reads (checked against the data before a fit)."""
         return ORACLE_FIELDS if self.hparams.advantage == "oracle" else ()
 
-    def policy_advantages(self, batch: dict[str, Tensor], context: RewardTrajectoryContext,
+    def policy_advantages(self, batch: Samples, context: RewardTrajectoryContext,
                           scored: RewardTrajectoryContext) -> Tensor:
         """The raw advantage of every step of ``scored`` ([ξ_b; ξ_a] rows, ``swap_roles``) for the policy loss."""
         if self.hparams.advantage != "oracle":
             return self.advantages(context, scored)
-        missing = [k for k in ORACLE_FIELDS if k not in batch]
-        if missing:
-            raise KeyError(f"{type(self).__name__}: advantage 'oracle' reads the oracle's A* from the batch "
-                           f"(fields {missing} are missing): use reward_trajectory data with oracle_advantages: true")
-        return torch.cat([batch["advantages_b"], batch["advantages_a"]]).to(scored.rewards.dtype)
+        return torch.cat([batch.advantages_b, batch.advantages_a]).to(scored.rewards.dtype)
 
     def policy_outputs(self, context: RewardTrajectoryContext, scored: RewardTrajectoryContext
                        ) -> tuple[Tensor, Tensor | None]:
@@ -195,7 +190,7 @@ class DITModule(InContextModule):
         """log T^R(a_h | s_h, D) for each step of ``scored`` -> (B, H); −‖a − μ‖² (Gaussian mean) if continuous."""
         return self.policy_outputs(context, scored)[0]
 
-    def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
+    def loss(self, batch: Samples) -> tuple[Tensor, dict[str, Tensor]]:
         hp = self.hparams
         context, scored = swap_roles(*self.labeled_trajectories(batch))
         returns = (1 - hp.gamma) * discounted_returns(scored.rewards, hp.gamma)
@@ -223,17 +218,18 @@ class DITModule(InContextModule):
             loss = loss + hp.value_auxiliary * metrics["policy_value_loss"]
         return loss, metrics
 
-    def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+    def validation_step(self, batch: Samples, batch_idx: int) -> None:
         super().validation_step(batch, batch_idx)
-        if "task" in batch:
-            self.log_dict({f"val/{k}": v for k, v in self.context_reading(batch).items()}, sync_dist=True)
+        if batch.task is not None:
+            self.log_dict({f"val/{k}": v for k, v in self.context_reading(batch).items()}, sync_dist=True,
+                          batch_size=batch.batch_size)
 
     @torch.no_grad()
-    def context_reading(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+    def context_reading(self, batch: Samples) -> dict[str, Tensor]:
         """Value loss and log-likelihood of the behavior's actions with the own context and with another task's
         (each row's context taken from the previous row, rows of the same task left out; empty dict if none)."""
         context, scored = swap_roles(*self.labeled_trajectories(batch))
-        task = torch.cat([batch["task"], batch["task"]])
+        task = torch.cat([batch.task, batch.task])
         previous = torch.roll(torch.arange(len(task), device=task.device), 1)
         keep = task[previous] != task
         if not keep.any():

@@ -12,6 +12,8 @@ from torch import Tensor
 
 from icprl_lightning.methods.base import InContextModule
 from icprl_lightning.methods.losses import supervised_action_loss
+from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
+from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError
 
 PREFERENCE_KINDS = ("step_preference", "trajectory_preference")
@@ -20,14 +22,10 @@ PREFERENCE_KINDS = ("step_preference", "trajectory_preference")
 class SupervisedPretrainingModule(InContextModule):
     needs_query_labels = True  # trains on the optimal actions of query states
 
-    def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
-        if "optimal_actions" not in batch:
-            raise KeyError(f"{type(self).__name__} trains on optimal-action labels: set "
-                           "data.init_args.query_labels: true")
-        context = self.context(batch)
-        positions = self.query_positions(batch["query_states"].shape[1], batch["query_states"].device)
-        queries, labels = batch["query_states"][:, positions], batch["optimal_actions"][:, positions]
-        outputs = self.policy(context, queries, positions + 1)
+    def loss(self, batch: ContextSamples) -> tuple[Tensor, dict[str, Tensor]]:
+        positions = self.query_positions(batch.query_states.shape[1], batch.query_states.device)
+        queries, labels = batch.query_states[:, positions], batch.optimal_actions[:, positions]
+        outputs = self.policy(batch.context, queries, positions + 1)
         loss = supervised_action_loss(outputs, labels, self.action_spec.discrete)
         metrics = {}
         if self.action_spec.discrete:
@@ -38,24 +36,25 @@ class SupervisedPretrainingModule(InContextModule):
 class DPTModule(SupervisedPretrainingModule):
     """DPT: reward context + optimal-action labels (the oracle baseline)."""
 
-    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, n_layer: int = 3,
-                 n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, queries_per_context: int | None = None,
-                 normalize_inputs: bool = False) -> None:
-        super().__init__("reward", state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
-                         dropout, lr, weight_decay, queries_per_context, normalize_inputs)
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
+                 backbone: TransformerConfig = DEFAULT_BACKBONE, lr: float = 3e-4, weight_decay: float = 0.0,
+                 queries_per_context: int | None = None, normalize_inputs: bool = False) -> None:
+        super().__init__("reward", state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
+                         weight_decay=weight_decay, queries_per_context=queries_per_context,
+                         normalize_inputs=normalize_inputs)
 
 
 class DP2TModule(SupervisedPretrainingModule):
     """DP²T: preference context + optimal-action labels (the paper's supervised diagnostic)."""
 
-    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
-                 context_kind: str = "step_preference", n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
-                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0,
-                 queries_per_context: int | None = None, normalize_inputs: bool = False) -> None:
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
+                 context_kind: str = "step_preference", backbone: TransformerConfig = DEFAULT_BACKBONE,
+                 lr: float = 3e-4, weight_decay: float = 0.0, queries_per_context: int | None = None,
+                 normalize_inputs: bool = False) -> None:
         if context_kind not in PREFERENCE_KINDS:
             raise HyperparameterError(f"DP2TModule: context_kind must be one of {list(PREFERENCE_KINDS)}, got "
                                       f"{context_kind!r} (DP2T conditions on preferences; a reward context makes "
                                       "it DPT, DPTModule)")
-        super().__init__(context_kind, state_dim, action_dim, discrete, max_context, n_layer, n_embd, n_head,
-                         dropout, lr, weight_decay, queries_per_context, normalize_inputs)
+        super().__init__(context_kind, state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
+                         weight_decay=weight_decay, queries_per_context=queries_per_context,
+                         normalize_inputs=normalize_inputs)

@@ -19,12 +19,12 @@ No optimal-action labels, no rewards: only the comparisons. Where the scored com
     DPT draws its query states. The number of visible context comparisons then says nothing about how
     far into an episode the scored state lies. Validation draws its permutation too (from the global
     seed), so ``val/loss`` carries that draw's noise.
-  - ``"aligned"``: its step t, the project's behavior until 2 December 2026. It teaches the model to
+  - ``"aligned"``: its step t. It teaches the model to
     read the context's length as a clock: query t always scores a state t steps into an episode, while a
     deployed agent sees the whole context at every step. On Meta-World Reach with the SAC oracle's
     behavior (which reaches the goal in ≈ 25 steps and then hovers past it) an aligned ICPO acts as if it
-    were late in the episode from its first step, moving away from the goal (docs/RESULTS.md,
-    "ICPO's clock"); ``scripts/reach_action_probe.py`` shows it.
+    were late in the episode from its first step, moving away from the goal;
+    ``experiments/reach_action_probe.py`` shows it.
 * ``"next"``: each context step's own comparison, scored before it is seen: query t sees the first t
   comparisons of D and scores comparison t + 1 (at its state s_{t+1}), for t = 0..H−1. With
   ``pair_steps: shuffled`` D's steps are put in a fresh random order per sample and step first, so
@@ -43,7 +43,9 @@ from torch import Tensor
 
 from icprl_lightning.methods.base import InContextModule
 from icprl_lightning.methods.losses import icpo_continuous_loss, icpo_loss
+from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
 from icprl_lightning.models.tokenizers import preferred_first
+from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError, check_choice, check_nonnegative, check_positive
 
 PAIR_SOURCES = ("other_trajectory", "next", "context")
@@ -51,12 +53,11 @@ PAIR_STEPS = ("shuffled", "aligned")
 
 
 class ICPOModule(InContextModule):
-    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, beta: float = 1.0,
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *, beta: float = 1.0,
                  lam: float = 0.5, pair_source: str = "other_trajectory", lambda_on_preferred: bool = False,
-                 squared_distance: bool = False, n_layer: int = 3, n_embd: int = 64, n_head: int = 4,
-                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0,
-                 queries_per_context: int | None = None, pair_steps: str = "shuffled",
-                 normalize_inputs: bool = False, layout: str = "appended") -> None:
+                 squared_distance: bool = False, backbone: TransformerConfig = DEFAULT_BACKBONE,
+                 lr: float = 3e-4, weight_decay: float = 0.0, queries_per_context: int | None = None,
+                 pair_steps: str = "shuffled", normalize_inputs: bool = False, layout: str = "appended") -> None:
         check_choice("ICPOModule", "pair_source", pair_source, PAIR_SOURCES)
         check_choice("ICPOModule", "pair_steps", pair_steps, PAIR_STEPS)
         check_positive("ICPOModule", "beta", beta)
@@ -74,8 +75,9 @@ class ICPOModule(InContextModule):
             raise HyperparameterError(f"ICPOModule: layout 'merged' scores all H steps in one pass of H tokens, so "
                                       f"queries_per_context would not shorten it; got {queries_per_context!r}, "
                                       "must be null")
-        super().__init__("step_preference", state_dim, action_dim, discrete, max_context, n_layer, n_embd,
-                         n_head, dropout, lr, weight_decay, queries_per_context, normalize_inputs, layout)
+        super().__init__("step_preference", state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
+                         weight_decay=weight_decay, queries_per_context=queries_per_context,
+                         normalize_inputs=normalize_inputs, layout=layout)
 
     @property
     def needs_pairs(self) -> bool:  # type: ignore[override]
@@ -89,17 +91,15 @@ class ICPOModule(InContextModule):
             return torch.arange(length, device=device).expand(batch_size, length)
         return torch.rand(batch_size, length, device=device).argsort(-1)
 
-    def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
+    def loss(self, batch: ContextSamples) -> tuple[Tensor, dict[str, Tensor]]:
         hp = self.hparams
-        context = self.context(batch)
+        context = batch.context
         t = context.states.shape[1]
         if hp.pair_source == "other_trajectory":
-            if "pair_states" not in batch:
-                raise KeyError("ICPO with pair_source=other_trajectory needs data.init_args.pairs: true")
             positions = self.query_positions(t, context.states.device)
             steps = self.scored_steps(context.states.shape[0], t, context.states.device)[:, positions]
             rows = torch.arange(len(steps), device=steps.device)[:, None]
-            pairs = self.context(batch, prefix="pair_").map(lambda x: x[rows, steps])
+            pairs = batch.pair.map(lambda x: x[rows, steps])
             outputs = self.policy(context, pairs.states, positions + 1)
         elif hp.pair_source == "next":
             order = self.scored_steps(context.states.shape[0], t, context.states.device)

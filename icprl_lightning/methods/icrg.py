@@ -32,15 +32,18 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from icprl_lightning.checkpoints import read_checkpoint
-from icprl_lightning.contexts import RewardTrajectoryContext, TrajectoryPreferenceContext, context_from_batch
+from icprl_lightning.checkpoints import hyperparameters, read_checkpoint
+from icprl_lightning.contexts import ActionSpec, RewardTrajectoryContext, TrajectoryPreferenceContext
 from icprl_lightning.deploy import Agent
 from icprl_lightning.methods.dit import DITModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
+from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
 from icprl_lightning.models.estimator import InContextRewardModel
+from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError
 
-ARCHITECTURE = ("n_layer", "n_embd", "n_head", "max_context", "dropout", "causal", "reward_range", "normalize_inputs")
+# R_ψ's architecture: what ``InContextRewardModel`` is built from besides the data's sizes (the backbone as a dict)
+ARCHITECTURE = ("backbone", "max_context", "causal", "reward_range", "normalize_inputs")
 
 
 # where a fit's checkpoint holds PreferenceDataModule's state_dict, its fold settings (Lightning names the
@@ -68,7 +71,7 @@ def read_reward_gen(checkpoint: str, field: str = "reward_gen_checkpoint"
     weights = {k[len(prefix):]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
     record = ckpt.get(FOLDS_RECORD)
     folds = (record.get("folds"), record.get("holdout_fold")) if isinstance(record, dict) else None
-    return dict(ckpt["hyper_parameters"]), weights, folds
+    return hyperparameters(ckpt), weights, folds
 
 
 def check_stage1(checkpoint: str, hparams: dict[str, Any], sizes: dict[str, Any]) -> dict[str, Any]:
@@ -78,6 +81,22 @@ def check_stage1(checkpoint: str, hparams: dict[str, Any], sizes: dict[str, Any]
             raise ValueError(f"{checkpoint} was trained with {key}={hparams[key]}, this data has {key}={mine}")
     # a RewardGen saved before its reading rule existed has no ``causal``: it read the whole context (the default)
     return {k: hparams[k] for k in ARCHITECTURE if k in hparams}
+
+
+def reward_architecture(architecture: Any) -> dict[str, Any]:
+    """A RewardGen architecture (``ARCHITECTURE``) as this module saves it: its backbone a plain dict (checked)."""
+    if not isinstance(architecture, dict) or "backbone" not in architecture or set(architecture) - set(ARCHITECTURE):
+        got = sorted(architecture) if isinstance(architecture, dict) else repr(architecture)
+        raise HyperparameterError(f"ICRGModule: a RewardGen architecture is a dict of {list(ARCHITECTURE)} (backbone "
+                                  f"required), got {got}")
+    return {**architecture, "backbone": TransformerConfig.coerce(architecture["backbone"]).as_dict()}
+
+
+def build_reward_model(state_dim: int, action_spec: ActionSpec, architecture: dict[str, Any]) -> InContextRewardModel:
+    """R_ψ built from its architecture (``reward_architecture``)."""
+    architecture = reward_architecture(architecture)
+    backbone = TransformerConfig(**architecture["backbone"])
+    return InContextRewardModel(state_dim, action_spec, **{**architecture, "backbone": backbone})
 
 
 def read_cross_fit(checkpoints: Any, sizes: dict[str, Any]) -> tuple[list[dict[str, Any]], list[dict[str, Tensor]]]:
@@ -119,20 +138,19 @@ class ICRGModule(DITModule):
     consumes = ("trajectory_preference",)
     needs_pairs = True
 
-    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
                  reward_gen_checkpoint: str | None = None, reward_gen_hparams: dict[str, Any] | None = None,
                  cross_fit_checkpoints: list[str] | None = None,
                  cross_fit_hparams: list[dict[str, Any]] | None = None, gamma: float = 0.95, eta: float = 1.0,
-                 max_weight: float = 20.0, value_epochs: int = 2,
-                 n_layer: int = 3, n_embd: int = 64, n_head: int = 4, dropout: float = 0.0, lr: float = 3e-4,
-                 weight_decay: float = 0.0, center_advantages: bool = True, advantage: str = "q_minus_v",
-                 normalize_inputs: bool = False) -> None:
+                 max_weight: float = 20.0, value_epochs: int = 2, backbone: TransformerConfig = DEFAULT_BACKBONE,
+                 lr: float = 3e-4, weight_decay: float = 0.0, center_advantages: bool = True,
+                 advantage: str = "q_minus_v", normalize_inputs: bool = False) -> None:
         if advantage == "oracle":
             raise HyperparameterError("ICRGModule: advantage 'oracle' reads the oracle's A*, which a preference "
                                       "method never receives; it is for DIT on true rewards (DITModule)")
-        super().__init__(state_dim, action_dim, discrete, max_context, gamma, eta, max_weight, value_epochs, n_layer,
-                         n_embd, n_head, dropout, lr, weight_decay, center_advantages, advantage,
-                         normalize_inputs=normalize_inputs)
+        super().__init__(state_dim, action_dim, discrete, max_context, gamma=gamma, eta=eta, max_weight=max_weight,
+                         value_epochs=value_epochs, backbone=backbone, lr=lr, weight_decay=weight_decay,
+                         center_advantages=center_advantages, advantage=advantage, normalize_inputs=normalize_inputs)
         weights = None
         sizes = {"state_dim": state_dim, "action_dim": action_dim, "discrete": discrete}
         if reward_gen_hparams is None:
@@ -146,8 +164,8 @@ class ICRGModule(DITModule):
                                  "fitted on every training task: train it without --data.init_args.holdout_fold "
                                  "(fold models go in cross_fit_checkpoints)")
             reward_gen_hparams = check_stage1(reward_gen_checkpoint, stage1, sizes)
-            self.hparams["reward_gen_hparams"] = reward_gen_hparams
-        self.reward_gen = InContextRewardModel(state_dim, self.action_spec, **reward_gen_hparams)
+        reward_gen_hparams = self.hparams["reward_gen_hparams"] = reward_architecture(reward_gen_hparams)
+        self.reward_gen = build_reward_model(state_dim, self.action_spec, reward_gen_hparams)
         if weights is not None:
             self.reward_gen.load_state_dict(weights)
         self.reward_gen.requires_grad_(False)
@@ -161,7 +179,8 @@ class ICRGModule(DITModule):
                     isinstance(h, dict) for h in cross_fit_hparams):
                 raise HyperparameterError("ICRGModule: cross_fit_hparams must be a list of k >= 2 architectures "
                                           f"(dicts, filled in from cross_fit_checkpoints), got {cross_fit_hparams!r}")
-            self.cross_fit = nn.ModuleList(InContextRewardModel(state_dim, self.action_spec, **h)
+            cross_fit_hparams = self.hparams["cross_fit_hparams"] = [reward_architecture(h) for h in cross_fit_hparams]
+            self.cross_fit = nn.ModuleList(build_reward_model(state_dim, self.action_spec, h)
                                            for h in cross_fit_hparams)
             for model, w in zip(self.cross_fit, fold_weights or [], strict=False):
                 model.load_state_dict(w)
@@ -180,14 +199,10 @@ class ICRGModule(DITModule):
         # "modules in eval mode at the start of training" warning (checked just before this hook) stays quiet
         self.train(self.training)
 
-    def labeled_trajectories(self, batch: dict[str, Tensor]) -> tuple[RewardTrajectoryContext, RewardTrajectoryContext]:
-        """The sample's two trajectories with R_ψ's labels (cross-fitted: the fold model of each row's task),
-        R_ψ conditioned on another pair of their task."""
-        if "pair_states_a" not in batch:
-            raise KeyError("ICRG labels a pair with RewardGen conditioned on another pair of its task: set "
-                           "data.init_args.pairs: true")
-        pair = context_from_batch("trajectory_preference", batch)
-        context = context_from_batch("trajectory_preference", batch, prefix="pair_")
+    def labeled_trajectories(self, batch: ContextSamples) -> tuple[RewardTrajectoryContext, RewardTrajectoryContext]:
+        """The sample's two trajectories (``batch.context``) with R_ψ's labels (cross-fitted: the fold model of each
+        row's task), R_ψ conditioned on another pair of their task (``batch.pair``)."""
+        pair, context = batch.context, batch.pair
         h = pair.states_a.shape[1]
         with torch.no_grad():
             r = self.label(batch, context, torch.cat([pair.states_a, pair.states_b], 1),
@@ -195,16 +210,17 @@ class ICRGModule(DITModule):
         return (RewardTrajectoryContext(pair.states_a, pair.actions_a, r[:, :h]),
                 RewardTrajectoryContext(pair.states_b, pair.actions_b, r[:, h:]))
 
-    def label(self, batch: dict[str, Tensor], context: TrajectoryPreferenceContext, states: Tensor,
+    def label(self, batch: ContextSamples, context: TrajectoryPreferenceContext, states: Tensor,
               actions: Tensor) -> Tensor:
         """Standardized rewards (B, Q) of ``states`` (B, Q, S), ``actions``: R_ψ's, or with cross-fitting each
-        row's by the model of its task's fold (``batch["task"] % k``), each model on its own rows only."""
+        row's by the model of its task's fold (``batch.task % k``), each model on its own rows only."""
         if self.cross_fit is None:
             return self.reward_gen.label(context, states, actions)
-        if "task" not in batch:
-            raise KeyError("ICRG with cross_fit_checkpoints labels each row with the RewardGen not fitted on its "
-                           "task, so batches need 'task', the training-task index (PreferenceDataModule serves it)")
-        fold = batch["task"] % len(self.cross_fit)
+        if batch.task is None:  # recorded data serves no task index, and the pairing check does not see this
+            raise ValueError("ICRG with cross_fit_checkpoints labels each row with the RewardGen not fitted on its "
+                             "task, so its samples need task, the training-task index, which this data does not "
+                             "serve (PreferenceDataModule serves it with an MDP setting)")
+        fold = batch.task % len(self.cross_fit)
         rewards = None
         for i, model in enumerate(self.cross_fit):
             rows = torch.nonzero(fold == i).squeeze(1)

@@ -4,7 +4,7 @@ R_ψ, conditioned on a T-PRL pair (ξ⁺, ξ⁻), is trained with the Bradley–
 label over the per-step sums of its rewards, −log σ(Σ_h R_ψ(s⁺_h, a⁺_h | D^T) − Σ_h R_ψ(s⁻_h, a⁻_h | D^T)).
 Which pair is scored (``pair_source``):
 
-* ``"other_pair"`` (default): another pair of the same task (``pair_*`` fields, ``data.pairs: true``) is
+* ``"other_pair"`` (default): another pair of the same task (the samples' ``pair``, ``data.pairs: true``) is
   the context. The scored transitions are not in view, so their rewards must come from the task the
   model infers from the context. This is how R_ψ is used: ICRG labels trajectories that are not in its
   context (another pair's in pretraining, the unlabeled behavior trajectory at deployment).
@@ -37,60 +37,71 @@ import lightning as L
 import torch
 from torch import Tensor
 
-from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext, context_from_batch
-from icprl_lightning.methods.base import fit_input_normalizers
+from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext
+from icprl_lightning.data_contract import PreferenceData
+from icprl_lightning.methods.base import fit_input_normalizers, save_backbone
 from icprl_lightning.methods.losses import trajectory_preference_loss
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.estimator import InContextRewardModel
-from icprl_lightning.validation import check_choice, check_range, check_sizes, check_transformer
+from icprl_lightning.samples import ContextSamples
+from icprl_lightning.validation import (
+    check_choice,
+    check_int,
+    check_optimizer,
+    check_pairing,
+    check_range,
+    check_sizes,
+)
 
 PAIR_SOURCES = ("other_pair", "context", "context_causal")
+REWARD_GEN_BACKBONE = TransformerConfig(n_layer=4, n_embd=32, n_head=4)  # R_ψ's default: deeper and narrower
 
 
 class RewardGenModule(L.LightningModule):
     consumes = ("trajectory_preference",)  # the data kind it trains on (checked by the CLI)
     needs_query_labels = False
 
-    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int,
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
                  pair_source: str = "other_pair", reward_range: list[float] | None = None,
-                 n_layer: int = 4, n_embd: int = 32, n_head: int = 4,
-                 dropout: float = 0.0, lr: float = 3e-4, weight_decay: float = 0.0,
-                 normalize_inputs: bool = False) -> None:
-        check_choice("RewardGenModule", "pair_source", pair_source, PAIR_SOURCES)
-        check_choice("RewardGenModule", "normalize_inputs", normalize_inputs, (True, False))
-        bounds = check_range("RewardGenModule", "reward_range", reward_range)
-        check_sizes("RewardGenModule", state_dim, action_dim)
-        check_transformer("RewardGenModule", n_layer, n_embd, n_head, dropout, lr, weight_decay, max_context)
+                 backbone: TransformerConfig = REWARD_GEN_BACKBONE, lr: float = 3e-4,
+                 weight_decay: float = 0.0, normalize_inputs: bool = False) -> None:
+        owner = "RewardGenModule"
+        check_choice(owner, "pair_source", pair_source, PAIR_SOURCES)
+        check_choice(owner, "normalize_inputs", normalize_inputs, (True, False))
+        bounds = check_range(owner, "reward_range", reward_range)
+        check_sizes(owner, state_dim, action_dim)
+        check_int(owner, "max_context", max_context, 1)
+        check_optimizer(owner, lr, weight_decay)
         super().__init__()
-        self.save_hyperparameters()
+        self.backbone = save_backbone(self, backbone)
         causal = pair_source == "context_causal"
         self.hparams["causal"] = causal  # R_ψ's reading rule, saved for ICRG to copy (icrg.ARCHITECTURE)
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
-        self.reward = InContextRewardModel(state_dim, self.action_spec, n_layer, n_embd, n_head, max_context, dropout,
-                                           causal=causal, reward_range=bounds, normalize_inputs=normalize_inputs)
+        self.reward = InContextRewardModel(state_dim, self.action_spec, self.backbone, max_context, causal=causal,
+                                           reward_range=bounds, normalize_inputs=normalize_inputs)
         self._moments = torch.zeros(3, dtype=torch.float64)  # count, sum, sum of squares of val outputs
 
     def on_fit_start(self) -> None:
-        fit_input_normalizers(self)  # normalize_inputs: standardized states (models/normalization.py)
+        """As ``InContextModule.on_fit_start``: the pairing check (for a fit without the CLI too), then the input
+        statistics (``normalize_inputs``: standardized states, models/normalization.py)."""
+        if isinstance(self.trainer.datamodule, PreferenceData):
+            check_pairing(self, self.trainer.datamodule)
+        fit_input_normalizers(self)
 
     @property
     def needs_pairs(self) -> bool:
         """pair_source other_pair conditions on another pair of the same task: the data's ``pairs``."""
         return self.hparams.pair_source == "other_pair"
 
-    def forward(self, context, states: Tensor, actions: Tensor) -> Tensor:
+    def forward(self, context: TrajectoryPreferenceContext, states: Tensor, actions: Tensor) -> Tensor:
         """Raw rewards R_ψ(s, a | context) for states (B, Q, S), actions (B, Q) -> (B, Q)."""
         return self.reward(context, states, actions)
 
-    def pair_rewards(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-        """(Σ_h r̂(ξ_a), Σ_h r̂(ξ_b), r̂ (B, 2H)) of the scored pair, conditioned per ``pair_source``."""
-        scored = context_from_batch("trajectory_preference", batch)
-        if self.hparams.pair_source == "other_pair":
-            if "pair_states_a" not in batch:
-                raise KeyError("RewardGen with pair_source=other_pair needs data.init_args.pairs: true")
-            context = context_from_batch("trajectory_preference", batch, prefix="pair_")
-        else:
-            context = scored
-        return self.score_pair(context, scored)
+    def pair_rewards(self, batch: ContextSamples) -> tuple[Tensor, Tensor, Tensor]:
+        """(Σ_h r̂(ξ_a), Σ_h r̂(ξ_b), r̂ (B, 2H)) of the scored pair ``batch.context``, conditioned per
+        ``pair_source`` (on ``batch.pair`` for ``other_pair``)."""
+        scored = batch.context
+        return self.score_pair(batch.pair if self.hparams.pair_source == "other_pair" else scored, scored)
 
     def score_pair(self, context: TrajectoryPreferenceContext, scored: TrajectoryPreferenceContext
                    ) -> tuple[Tensor, Tensor, Tensor]:
@@ -102,30 +113,31 @@ class RewardGenModule(L.LightningModule):
         return r[:, :h].sum(1), r[:, h:].sum(1), r
 
     @torch.no_grad()
-    def pair_correct(self, batch: dict[str, Tensor]) -> Tensor:
+    def pair_correct(self, batch: ContextSamples) -> Tensor:
         """(B,) bool: the summed rewards order each scored pair as its label does."""
         ret_a, ret_b, _ = self.pair_rewards(batch)
-        return (ret_a > ret_b) == (batch["preferred"] > 0.5)
+        return (ret_a > ret_b) == (batch.context.preferred > 0.5)
 
-    def loss(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, Tensor], Tensor]:
+    def loss(self, batch: ContextSamples) -> tuple[Tensor, dict[str, Tensor], Tensor]:
         ret_a, ret_b, r = self.pair_rewards(batch)
-        loss = trajectory_preference_loss(ret_a, ret_b, batch["preferred"])
-        accuracy = ((ret_a > ret_b) == (batch["preferred"] > 0.5)).float().mean()
+        preferred = batch.context.preferred
+        loss = trajectory_preference_loss(ret_a, ret_b, preferred)
+        accuracy = ((ret_a > ret_b) == (preferred > 0.5)).float().mean()
         return loss, {"pair_accuracy": accuracy}, r
 
-    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
+    def training_step(self, batch: ContextSamples, batch_idx: int) -> Tensor:
         loss, metrics, _ = self.loss(batch)
-        self.log("train/loss", loss, prog_bar=True)
-        self.log_dict({f"train/{k}": v for k, v in metrics.items()})
+        self.log("train/loss", loss, prog_bar=True, batch_size=batch.batch_size)
+        self.log_dict({f"train/{k}": v for k, v in metrics.items()}, batch_size=batch.batch_size)
         return loss
 
     def on_validation_epoch_start(self) -> None:
         self._moments.zero_()
 
-    def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+    def validation_step(self, batch: ContextSamples, batch_idx: int) -> None:
         loss, metrics, r = self.loss(batch)
-        self.log("val/loss", loss, prog_bar=True)
-        self.log_dict({f"val/{k}": v for k, v in metrics.items()})
+        self.log("val/loss", loss, prog_bar=True, batch_size=batch.batch_size)
+        self.log_dict({f"val/{k}": v for k, v in metrics.items()}, batch_size=batch.batch_size)
         r = r.detach().double().cpu()
         self._moments += torch.stack([torch.tensor(float(r.numel()), dtype=torch.float64), r.sum(), r.pow(2).sum()])
 

@@ -20,7 +20,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.contexts import ActionSpec, Context, TrajectoryPreferenceContext
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.normalization import InputNormalizer
 from icprl_lightning.models.tokenizers import TOKENIZERS
 from icprl_lightning.models.transformer import CausalTransformer
@@ -30,22 +31,21 @@ from icprl_lightning.validation import check_range
 class InContextEstimator(nn.Module):
     """f(s[, a] | D) -> a scalar per query; ``with_action`` says whether the query holds an action."""
 
-    def __init__(self, context_kind: str, state_dim: int, action_spec: ActionSpec, with_action: bool, n_layer: int,
-                 n_embd: int, n_head: int, max_context: int, dropout: float = 0.0, normalize_inputs: bool = False
-                 ) -> None:
+    def __init__(self, context_kind: str, state_dim: int, action_spec: ActionSpec, with_action: bool,
+                 backbone: TransformerConfig, max_context: int, normalize_inputs: bool = False) -> None:
         super().__init__()
         if context_kind not in TOKENIZERS:
             raise ValueError(f"no tokenizer for context kind {context_kind!r}; known: {sorted(TOKENIZERS)}")
         self.context_kind = context_kind
         self.action_spec = action_spec
         self.with_action = with_action
-        self.tokenizer = TOKENIZERS[context_kind](state_dim, action_spec, n_embd)
-        self.query_embed = nn.Linear(state_dim + (action_spec.size if with_action else 0), n_embd)
-        self.transformer = CausalTransformer(n_layer, n_embd, n_head, max_context, dropout)
-        self.head = nn.Linear(n_embd, 1)
+        self.tokenizer = TOKENIZERS[context_kind](state_dim, action_spec, backbone.n_embd)
+        self.query_embed = nn.Linear(state_dim + (action_spec.size if with_action else 0), backbone.n_embd)
+        self.transformer = CausalTransformer(backbone, max_context)
+        self.head = nn.Linear(backbone.n_embd, 1)
         self.normalizer = InputNormalizer(state_dim) if normalize_inputs else None  # see models/normalization.py
 
-    def forward(self, context, states: Tensor, actions: Tensor | None = None, visible: Tensor | None = None
+    def forward(self, context: Context, states: Tensor, actions: Tensor | None = None, visible: Tensor | None = None
                 ) -> Tensor:
         """states (B, Q, S) [, actions (B, Q) | (B, Q, A)] -> (B, Q).
 
@@ -82,11 +82,11 @@ class InContextRewardModel(InContextEstimator):
     paper's model read fairly in time, not a leak-free test: scoring another pair of the task is.
     """
 
-    def __init__(self, state_dim: int, action_spec: ActionSpec, n_layer: int, n_embd: int, n_head: int,
-                 max_context: int, dropout: float = 0.0, causal: bool = False,
-                 reward_range: tuple[float, float] | None = None, normalize_inputs: bool = False) -> None:
-        super().__init__("trajectory_preference", state_dim, action_spec, True, n_layer, n_embd, n_head, max_context,
-                         dropout, normalize_inputs)
+    def __init__(self, state_dim: int, action_spec: ActionSpec, backbone: TransformerConfig, max_context: int,
+                 causal: bool = False, reward_range: tuple[float, float] | None = None,
+                 normalize_inputs: bool = False) -> None:
+        super().__init__("trajectory_preference", state_dim, action_spec, True, backbone, max_context,
+                         normalize_inputs)
         if not isinstance(causal, bool):
             raise ValueError(f"InContextRewardModel: causal must be a bool, got {causal!r}")
         self.causal = causal
@@ -107,7 +107,7 @@ class InContextRewardModel(InContextEstimator):
                              f"H; got {n_queries}")
         return torch.arange(n_queries, device=device) % horizon
 
-    def forward(self, context, states: Tensor, actions: Tensor) -> Tensor:
+    def forward(self, context: TrajectoryPreferenceContext, states: Tensor, actions: Tensor) -> Tensor:
         """Raw rewards R_ψ(s, a | context) for states (B, Q, S), actions (B, Q) -> (B, Q), read per ``causal``,
         inside ``reward_range`` when it is set."""
         r = super().forward(context, states, actions, self.visible(context.states_a.shape[1], states.shape[1],
@@ -117,6 +117,6 @@ class InContextRewardModel(InContextEstimator):
         low, high = self.reward_range
         return low + (high - low) * torch.sigmoid(r)
 
-    def label(self, context, states: Tensor, actions: Tensor) -> Tensor:
+    def label(self, context: TrajectoryPreferenceContext, states: Tensor, actions: Tensor) -> Tensor:
         """Standardized r̂(s_h, a_h | D^T) for states (B, T, S), actions (B, T) -> (B, T)."""
         return (self(context, states, actions) - self.reward_mean) / self.reward_std

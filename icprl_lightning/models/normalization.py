@@ -19,6 +19,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from icprl_lightning.contexts import Context
+
 # at most this many rows (steps) per field enter the statistics, evenly strided
 MAX_ROWS = 1_000_000
 
@@ -66,7 +68,7 @@ class InputNormalizer(nn.Module):
     def rewards(self, x: Tensor) -> Tensor:
         return (x - self.reward_mean) / self.reward_std
 
-    def context(self, context):
+    def context(self, context: Context) -> Context:
         """The same context with its state and reward fields standardized (absent optional fields stay None)."""
         changes = {}
         for f in dataclasses.fields(context):

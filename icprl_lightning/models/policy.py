@@ -28,7 +28,8 @@ import warnings
 import torch
 from torch import Tensor, nn
 
-from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.contexts import ActionSpec, Context
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.normalization import InputNormalizer
 from icprl_lightning.models.tokenizers import TOKENIZERS
 from icprl_lightning.models.transformer import CausalTransformer, KVCache
@@ -48,9 +49,8 @@ class GaussianMeanHead(nn.Module):
 class InContextPolicy(nn.Module):
     """Maps (context, query states) to action logits (discrete) or action means (continuous)."""
 
-    def __init__(self, context_kind: str, state_dim: int, action_spec: ActionSpec, n_layer: int, n_embd: int,
-                 n_head: int, max_context: int, dropout: float = 0.0, normalize_inputs: bool = False,
-                 layout: str = "appended") -> None:
+    def __init__(self, context_kind: str, state_dim: int, action_spec: ActionSpec, backbone: TransformerConfig,
+                 max_context: int, normalize_inputs: bool = False, layout: str = "appended") -> None:
         super().__init__()
         if context_kind not in TOKENIZERS:
             raise ValueError(f"no tokenizer for context kind {context_kind!r}; known: {sorted(TOKENIZERS)}")
@@ -60,11 +60,12 @@ class InContextPolicy(nn.Module):
         self.state_dim = state_dim
         self.action_spec = action_spec
         self.layout = layout
+        n_embd = backbone.n_embd
         self.tokenizer = TOKENIZERS[context_kind](state_dim, action_spec, n_embd)
         with warnings.catch_warnings():  # a bandit has no state (state_dim 0): its query token is the bias alone,
             warnings.filterwarnings("ignore", "Initializing zero-element tensors", UserWarning)  # nothing to init
             self.query_embed = nn.Linear(state_dim, n_embd)
-        self.transformer = CausalTransformer(n_layer, n_embd, n_head, max_context, dropout)
+        self.transformer = CausalTransformer(backbone, max_context)
         self.head = (nn.Linear(n_embd, action_spec.size) if action_spec.discrete
                      else GaussianMeanHead(n_embd, action_spec.size))
         # standardized states and rewards (models/normalization.py); None: the raw inputs, as the paper
@@ -74,13 +75,13 @@ class InContextPolicy(nn.Module):
     def merged(self) -> bool:
         return self.layout == "merged"
 
-    def _tokens(self, context) -> Tensor:
+    def _tokens(self, context: Context) -> Tensor:
         return self.tokenizer(context if self.normalizer is None else self.normalizer.context(context))
 
     def _query(self, query_states: Tensor) -> Tensor:
         return self.query_embed(query_states if self.normalizer is None else self.normalizer.states(query_states))
 
-    def _merged(self, context, start: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    def _merged(self, context: Context, start: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """(tokens E(c_j) + E_q(s_{j+1}) for j = 0..T−1, E(c_1..c_T)); ``start`` is E(c_j) before the first step
         (zeros: the sequence's start; online deployment passes the cache's carry)."""
         tokens = self._tokens(context)  # (B, T, D)
@@ -89,7 +90,7 @@ class InContextPolicy(nn.Module):
         previous = torch.cat([start, tokens[:, :-1]], dim=1)
         return previous + self._query(context.states), tokens
 
-    def features(self, context, query_states: Tensor, visible: Tensor) -> Tensor:
+    def features(self, context: Context, query_states: Tensor, visible: Tensor) -> Tensor:
         """The transformer's outputs at the query tokens, before the action head -> (B, Q, n_embd)."""
         if not self.merged:
             return self.transformer(self._tokens(context), self._query(query_states), visible)
@@ -98,11 +99,11 @@ class InContextPolicy(nn.Module):
         seen = torch.cat([start, tokens], dim=1)[:, visible.to(tokens.device)]  # E(c_v), zeros for v = 0
         return self.transformer(steps, seen + self._query(query_states), visible)
 
-    def forward(self, context, query_states: Tensor, visible: Tensor) -> Tensor:
+    def forward(self, context: Context, query_states: Tensor, visible: Tensor) -> Tensor:
         """query_states (B, Q, S), visible (Q,) -> (B, Q, A): logits or action means."""
         return self.head(self.features(context, query_states, visible))
 
-    def next_step_outputs(self, context) -> Tensor:
+    def next_step_outputs(self, context: Context) -> Tensor:
         """Merged layout: T_θ(· | s_{j+1}, D_{1:j}) for j = 0..T−1 in one causal pass -> (B, T, A).
 
         Equals ``forward(context, context.states, arange(T))`` (tested), in T tokens instead of 2T.
@@ -112,7 +113,7 @@ class InContextPolicy(nn.Module):
                              f"{self.layout!r} (use forward)")
         return self.head(self.transformer.causal(self._merged(context)[0]))
 
-    def encode(self, context) -> KVCache:
+    def encode(self, context: Context) -> KVCache:
         if not self.merged:
             return self.transformer.encode(self._tokens(context))
         steps, tokens = self._merged(context)
@@ -134,7 +135,7 @@ class InContextPolicy(nn.Module):
             cache.carry = cache.keys[0].new_zeros(batch_size, 1, self.transformer.pos.embedding_dim)
         return cache
 
-    def extend(self, cache: KVCache, steps) -> KVCache:
+    def extend(self, cache: KVCache, steps: Context) -> KVCache:
         """Append the context steps ``steps`` (B, n) to the cached context, in place (``CausalTransformer.extend``)."""
         if not self.merged:
             return self.transformer.extend(cache, self._tokens(steps))

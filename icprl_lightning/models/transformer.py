@@ -29,6 +29,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from icprl_lightning.models.config import TransformerConfig
+
 # tasks per chunk of ``CausalTransformer.encode``: 64 DarkRoom contexts of 100 tokens keep a small model's
 # MLP activations (6,400 x 128 floats) within the CPU's cache (benchmarks/deployment_throughput.py)
 ENCODE_ROWS = 64
@@ -133,15 +135,16 @@ def query_mask(n_context: int, visible: Tensor) -> Tensor:
 
 
 class CausalTransformer(nn.Module):
-    """Pre-LN transformer on embedded tokens; ``max_context`` bounds the context length."""
+    """Pre-LN transformer on embedded tokens, sized by ``config``; ``max_context`` bounds the context length."""
 
-    def __init__(self, n_layer: int, n_embd: int, n_head: int, max_context: int, dropout: float = 0.0) -> None:
+    def __init__(self, config: TransformerConfig, max_context: int) -> None:
         super().__init__()
+        self.config = config
         self.max_context = max_context
-        self.pos = nn.Embedding(max_context + 1, n_embd)
-        self.drop = nn.Dropout(dropout)
-        self.blocks = nn.ModuleList(Block(n_embd, n_head, dropout) for _ in range(n_layer))
-        self.ln_f = nn.LayerNorm(n_embd)
+        self.pos = nn.Embedding(max_context + 1, config.n_embd)
+        self.drop = nn.Dropout(config.dropout)
+        self.blocks = nn.ModuleList(Block(config.n_embd, config.n_head, config.dropout) for _ in range(config.n_layer))
+        self.ln_f = nn.LayerNorm(config.n_embd)
         self.apply(self._init)
 
     @staticmethod

@@ -16,8 +16,9 @@ from icprl_lightning.deploy import Agent, ContextKind
 from icprl_lightning.methods.dit import DITModule
 from icprl_lightning.methods.dpt import DP2TModule, DPTModule
 from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.config import TransformerConfig
 
-SIZES = dict(n_layer=1, n_embd=16, n_head=2)
+SIZES = dict(backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 # (module, its init arguments, the context kind its agent takes)
 CASES = {
     "dpt": (DPTModule, dict(state_dim=2, action_dim=5, discrete=True, max_context=7), "reward"),

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from icprl_lightning import OnlineAgent, StepPreferenceContext
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.policy import LAYOUTS, InContextPolicy
 from icprl_lightning.models.transformer import CausalTransformer
 from icprl_lightning.online import PAIR_RULES, SampledPair, TopTwo, UniformPair
@@ -24,7 +25,8 @@ def _policy(state_dim: int, spec: ActionSpec, max_context: int = 12, n_layer: in
     """A random untrained policy, its weights drawn wider than the init's so that every token moves the outputs
     (with ``normalize_inputs``, statistics that are far from the identity)."""
     torch.manual_seed(seed)
-    policy = InContextPolicy(kind, state_dim, spec, n_layer=n_layer, n_embd=16, n_head=2, max_context=max_context,
+    policy = InContextPolicy(kind, state_dim, spec,
+                             backbone=TransformerConfig(n_layer=n_layer, n_embd=16, n_head=2), max_context=max_context,
                              layout=layout, normalize_inputs=normalize_inputs)
     with torch.no_grad():
         for p in policy.parameters():
@@ -127,7 +129,7 @@ def test_empty_start_queries_position_zero():
 
 def test_extend_equals_encode_and_grows_geometrically():
     torch.manual_seed(0)
-    net = CausalTransformer(n_layer=2, n_embd=16, n_head=2, max_context=20).eval()
+    net = CausalTransformer(TransformerConfig(n_layer=2, n_embd=16, n_head=2), max_context=20).eval()
     tokens, q = torch.randn(2, 20, 16), torch.randn(2, 1, 16)
     cache, capacities = net.empty_cache(2), []
     for i in range(20):
@@ -244,7 +246,8 @@ def test_other_context_kinds_are_refused():
 
 def test_loads_a_bandit_checkpoint(tmp_path):
     torch.manual_seed(0)
-    module = ICPOModule(state_dim=0, action_dim=6, discrete=True, max_context=5, n_layer=1, n_embd=16, n_head=2)
+    module = ICPOModule(state_dim=0, action_dim=6, discrete=True, max_context=5,
+                        backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
     checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
     module.on_save_checkpoint(checkpoint)
     path = tmp_path / "bandit.ckpt"
@@ -280,8 +283,8 @@ def test_pair_rules_resolve_by_name_when_the_agent_is_built(tmp_path, name, rule
                                            ("sampled", "SampledPair needs discrete actions")])
 def test_an_unknown_or_unfit_pair_rule_fails_when_the_agent_is_built(tmp_path, rule, message):
     torch.manual_seed(0)
-    module = ICPOModule(state_dim=2, action_dim=3, discrete=rule != "sampled", max_context=5, n_layer=1, n_embd=16,
-                        n_head=2)
+    module = ICPOModule(state_dim=2, action_dim=3, discrete=rule != "sampled", max_context=5,
+                        backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
     checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
     module.on_save_checkpoint(checkpoint)
     torch.save(checkpoint, tmp_path / "m.ckpt")

@@ -30,7 +30,9 @@ from icprl_lightning.evaluation import (
 from icprl_lightning.families.dueling_bandit.dts import DoubleThompsonSampling
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.metrics import WeakRegret
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.policy import InContextPolicy
+from icprl_lightning.samples import ContextSamples
 
 TINY = dict(n_train_problems=6, contexts_per_problem=2, n_val_problems=2, val_contexts_per_problem=2,
             n_eval_problems=5, batch_size=4, progress=False)
@@ -57,12 +59,15 @@ def test_batches_are_stateless_duels_with_pairs_and_no_task_information(tiny_ban
     assert tiny_bandit.context_length == 200
     for loader in (tiny_bandit.train_dataloader(), tiny_bandit.val_dataloader()):
         batch = next(iter(loader))
-        assert set(batch) == CONTEXT_KEYS | {f"pair_{k}" for k in CONTEXT_KEYS}  # no θ, no rewards
-        assert batch["states"].shape == (4, 200, 0) and batch["states"].dtype == torch.float32
-        assert batch["actions"].shape == (4, 200) and batch["actions"].dtype == torch.int64
-        assert (batch["actions"] != batch["alt_actions"]).all()  # uniform pretraining pairs are distinct
-        assert set(batch["preferred"].unique().tolist()) <= {0.0, 1.0}
-        StepPreferenceContext(**{k: batch[k] for k in CONTEXT_KEYS}).validate(0, tiny_bandit.action_spec)
+        # a context and another of its problem, nothing else: no θ, no rewards, no task index
+        assert isinstance(batch, ContextSamples) and batch.task is None and batch.query_states is None
+        for ctx in (batch.context, batch.pair):
+            assert isinstance(ctx, StepPreferenceContext)
+            assert ctx.states.shape == (4, 200, 0) and ctx.states.dtype == torch.float32
+            assert ctx.actions.shape == (4, 200) and ctx.actions.dtype == torch.int64
+            assert (ctx.actions != ctx.alt_actions).all()  # uniform pretraining pairs are distinct
+            assert set(ctx.preferred.unique().tolist()) <= {0.0, 1.0}
+            ctx.validate(0, tiny_bandit.action_spec)
 
 
 def test_eval_splits_hold_behaviour_next_duels_and_rewards_for_evaluation_only(tiny_bandit):
@@ -159,7 +164,7 @@ def test_agent_plays_the_argmax_after_each_prefix_and_a_uniform_other_arm():
 def test_agent_duels_equal_the_direct_forward_pass_duels(seed):
     """Agent.act_each_prefix (chunked over problems) plays exactly the duels of the policy's own prefix pass."""
     torch.manual_seed(seed)
-    policy = InContextPolicy("step_preference", 0, ActionSpec(True, 6), 2, 32, 2, max_context=20).eval()
+    policy = InContextPolicy("step_preference", 0, ActionSpec(True, 6), TransformerConfig(2, 32, 2), 20).eval()
     context = _random_context(b=7, h=20, n_arms=6, seed=seed)
     first, second = agent_duels(Agent(policy), context, np.random.default_rng(seed), batch_chunk=3)
     ref_first, ref_second = _direct_forward_duels(policy, context, np.random.default_rng(seed))
@@ -169,7 +174,7 @@ def test_agent_duels_equal_the_direct_forward_pass_duels(seed):
 
 def test_last_prefix_matches_the_deployed_agent_on_the_whole_context():
     torch.manual_seed(0)
-    policy = InContextPolicy("step_preference", 0, ActionSpec(True, 6), 2, 32, 2, max_context=20)
+    policy = InContextPolicy("step_preference", 0, ActionSpec(True, 6), TransformerConfig(2, 32, 2), max_context=20)
     context = _random_context(b=7, h=20, n_arms=6)
     agent = Agent(policy, greedy=True)
     first, _ = agent_duels(agent, context, np.random.default_rng(0))
@@ -179,7 +184,7 @@ def test_last_prefix_matches_the_deployed_agent_on_the_whole_context():
 
 def test_act_each_prefix_shapes_continuous_actions_and_errors():
     torch.manual_seed(0)
-    policy = InContextPolicy("step_preference", 3, ActionSpec(False, 2), 1, 16, 2, max_context=10)
+    policy = InContextPolicy("step_preference", 3, ActionSpec(False, 2), TransformerConfig(1, 16, 2), max_context=10)
     g = torch.Generator().manual_seed(0)
     context = StepPreferenceContext(torch.randn(4, 10, 3, generator=g), torch.rand(4, 10, 2, generator=g) * 2 - 1,
                                     torch.rand(4, 10, 2, generator=g) * 2 - 1, torch.randint(0, 2, (4, 10)).float())
@@ -278,7 +283,8 @@ def _bandit_run(tmp_path, tiny_bandit):
                                                     if k not in ("setting", "context_kind")}}}}
     config.write_text(yaml.safe_dump({"data": data}))
     torch.manual_seed(0)
-    model = ICPOModule(state_dim=0, action_dim=20, discrete=True, max_context=200, n_layer=1, n_embd=16, n_head=2)
+    model = ICPOModule(state_dim=0, action_dim=20, discrete=True, max_context=200,
+                       backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
     trainer = L.Trainer(max_steps=3, limit_val_batches=0, logger=False, default_root_dir=tmp_path,
                         enable_progress_bar=False, enable_model_summary=False, enable_checkpointing=False)
     trainer.fit(model, datamodule=tiny_bandit)
@@ -318,7 +324,8 @@ def test_icprl_evaluate_writes_weak_regret_of_the_run_dts_and_behaviour(tmp_path
 def test_paper_config_has_the_paper_sizes():
     cli = run_cli([*config_args("configs/paper/icpo_bandit.yaml"), "--trainer.logger", "false"], run=False)
     hp, dm = cli.model.hparams, cli.datamodule
-    assert (hp.n_layer, hp.n_embd, hp.n_head, hp.lr, dm.batch_size) == (6, 256, 8, 3e-4, 32)
+    assert (hp.backbone, hp.lr, dm.batch_size) == ({"n_layer": 6, "n_embd": 256, "n_head": 8, "dropout": 0.0}, 3e-4, 32)
+    assert cli.model.backbone == TransformerConfig(n_layer=6, n_embd=256, n_head=8)
     assert dm.setting.n_problems["train"] * dm.trajectories_per_task[0] == 100_000
     assert (dm.family.n_arms, dm.family.dim, dm.context_length, hp.state_dim) == (20, 10, 200, 0)
 
@@ -360,7 +367,8 @@ def test_a_stateless_policy_builds_without_warnings_and_its_query_token_is_a_lea
     (nn.Linear's init of the empty weight does, which every bandit run printed), and the bias is trained."""
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        module = ICPOModule(state_dim=0, action_dim=4, discrete=True, max_context=8, n_layer=1, n_embd=16, n_head=2)
+        module = ICPOModule(state_dim=0, action_dim=4, discrete=True, max_context=8,
+                            backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
     embed = module.policy.query_embed
     assert embed.weight.shape == (16, 0) and embed.bias.requires_grad
     assert torch.equal(embed(torch.zeros(3, 0)), embed.bias.expand(3, 16))

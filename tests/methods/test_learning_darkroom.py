@@ -8,6 +8,7 @@ from factories import darkroom_data  # noqa: E402
 
 from icprl_lightning.callbacks.rollout import InContextRolloutCallback
 from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.config import TransformerConfig
 
 
 @pytest.mark.slow
@@ -17,7 +18,8 @@ def test_icpo_beats_the_behavior_policy_on_held_out_goals(tmp_path):
                             eval_contexts_per_task=3, calibration_episodes=10, pairs=True, batch_size=32,
                             progress=False)
     # β and λ of configs/icpo_darkroom.yaml (the β × λ sweep's pick)
-    model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100, n_layer=2, n_embd=64, n_head=4,
+    model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100,
+                       backbone=TransformerConfig(n_layer=2, n_embd=64, n_head=4),
                        lr=1e-3, beta=0.1, lam=1.0)
     rollout = InContextRolloutCallback(seed=0, diagnostics=["flipped_labels", "random_labels", "other_task"])
     # 960 contexts / 32 = 30 steps an epoch: about 400 optimizer steps, validated (and rolled out) once at the end

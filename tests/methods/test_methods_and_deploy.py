@@ -9,8 +9,10 @@ from icprl_lightning import StepPreferenceContext, load_agent
 from icprl_lightning.contexts import RewardContext
 from icprl_lightning.methods.dpt import DP2TModule, DPTModule
 from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.validation import HyperparameterError
 
-SIZES = dict(n_layer=2, n_embd=32, n_head=2)
+SIZES = dict(backbone=TransformerConfig(n_layer=2, n_embd=32, n_head=2))
 
 
 def _module(cls, dm, **kw):
@@ -37,11 +39,16 @@ def test_every_parameter_moves_after_a_step(cls, fixture, kw, request):
     assert frozen == [], frozen
 
 
-def test_icpo_refuses_batches_without_pairs(tiny_ipref, tiny_kwargs):
-
+def test_icpo_refuses_data_without_pairs_before_a_step(tiny_ipref, tiny_kwargs):
+    """ICPO's default loss scores another trajectory of the task: a fit on data without pairs stops at its start
+    (the pairing check, also without the CLI), not inside the loss."""
     dm = darkroom_data(root_dir=tiny_ipref.root_dir, pairs=False, **tiny_kwargs)
-    with pytest.raises(KeyError, match="pairs: true"):
-        _module(ICPOModule, dm).loss(next(iter(dm.train_dataloader())))
+    trainer = L.Trainer(fast_dev_run=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False)
+    model = _module(ICPOModule, dm)
+    with pytest.raises(HyperparameterError, match="ICPOModule .*needs PreferenceDataModule with pairs: true"):
+        trainer.fit(model, datamodule=dm)
+    assert trainer.global_step == 0
 
 
 @pytest.fixture(scope="module")

@@ -1,32 +1,33 @@
 """RewardGen's causal reading of its own pair (``pair_source="context_causal"``): step h sees only the context's
 steps < h, in training, in ICRG's relabeling and at deployment; its checkpoints keep the rule; and the reward
-quality script (``scripts/reward_gen_quality.py``) runs end to end on a tiny checkpoint."""
+quality measures (``icprl analyze reward-quality``, ``evaluation/reward_quality.py``) run end to end on a tiny
+checkpoint."""
 
 from __future__ import annotations
 
 import json
 import pathlib
-import sys
 
 import lightning as L
 import numpy as np
 import pytest
 import torch
-from factories import darkroom_data, darkroom_tprl_config  # noqa: E402
+from factories import darkroom_data, darkroom_tprl_config, save_untrained
 
 from icprl_lightning.checkpoints import load_module
-from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext, context_from_batch
+from icprl_lightning.cli import main
+from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext
 from icprl_lightning.data import PreferenceDataModule
+from icprl_lightning.evaluation import reward_quality
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.estimator import InContextRewardModel
-
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "scripts"))
-import reward_gen_quality  # noqa: E402
+from icprl_lightning.samples import ContextSamples
 
 SETTING = dict(trajectories_per_task=3, val_trajectories_per_task=2, eval_contexts_per_task=2, calibration_episodes=2,
                reference_episodes=2)
-SIZES = dict(n_layer=1, n_embd=16, n_head=2)
+SIZES = dict(backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100)
 H = 6
 
@@ -99,11 +100,11 @@ def test_context_causal_scores_its_own_pair_causally():
     assert causal.reward.causal and not leaky.reward.causal and causal.hparams.causal and not leaky.hparams.causal
     assert not causal.needs_pairs
     ctx = _pair(0, h=H)
-    batch = {k: getattr(ctx, k) for k in ("states_a", "actions_a", "states_b", "actions_b", "preferred")}
+    batch = ContextSamples(ctx)
     h = 2  # redraw ξ_a after step h: the context's tokens > h and ξ_a's own queries > h change
-    changed = dict(batch, states_a=batch["states_a"].clone(), actions_a=batch["actions_a"].clone())
-    changed["states_a"][:, h + 1:] = _pair(5).states_a[:, h + 1:]
-    changed["actions_a"][:, h + 1:] = _pair(5).actions_a[:, h + 1:]
+    changed = ContextSamples(ctx.map(torch.clone))
+    changed.context.states_a[:, h + 1:] = _pair(5).states_a[:, h + 1:]
+    changed.context.actions_a[:, h + 1:] = _pair(5).actions_a[:, h + 1:]
     seen = torch.cat([torch.arange(h + 1), H + torch.arange(h + 1)])  # both trajectories' steps <= h
     before, after = causal.pair_rewards(batch)[2], causal.pair_rewards(changed)[2]
     torch.testing.assert_close(after[:, seen], before[:, seen])
@@ -152,10 +153,10 @@ def test_icrg_from_a_causal_reward_gen_labels_causally(tprl, causal_ckpt, tmp_pa
     batch = next(iter(tprl.train_dataloader()))
     a, b = model.labeled_trajectories(batch)
     h = 40
-    later = dict(batch)  # the conditioning pair redrawn from step h on: labels of steps <= h stay
-    for k in ("pair_states_a", "pair_states_b"):
-        later[k] = batch[k].clone()
-        later[k][:, h:] = torch.rand_like(later[k][:, h:]) * 9
+    # the conditioning pair redrawn from step h on: the labels of steps <= h stay
+    later = batch._replace(pair=batch.pair.map(torch.clone))
+    for states in (later.pair.states_a, later.pair.states_b):
+        states[:, h:] = torch.rand_like(states[:, h:]) * 9
     a2, b2 = model.labeled_trajectories(later)
     torch.testing.assert_close(a2.rewards[:, :h + 1], a.rewards[:, :h + 1])
     torch.testing.assert_close(b2.rewards[:, :h + 1], b.rewards[:, :h + 1])
@@ -176,7 +177,7 @@ def test_icrg_from_a_causal_reward_gen_labels_causally(tprl, causal_ckpt, tmp_pa
     torch.testing.assert_close(agent.labeled_context.rewards[:, :h + 1], first[:, :h + 1])
     assert not torch.allclose(agent.labeled_context.rewards[:, h + 1:], first[:, h + 1:])
     # an architecture without the flag (an ICRG checkpoint saved before it existed) reads the whole context
-    old = ICRGModule(**ENV, **SIZES, reward_gen_hparams=dict(SIZES, max_context=100, dropout=0.0))
+    old = ICRGModule(**ENV, **SIZES, reward_gen_hparams=dict(backbone=SIZES["backbone"].as_dict(), max_context=100))
     assert not old.reward_gen.causal
 
 
@@ -191,11 +192,13 @@ def _config(tmp_path: pathlib.Path, data_root: str) -> pathlib.Path:
     return darkroom_tprl_config(tmp_path / "tiny.yaml", data_root, SETTING)
 
 
-def test_quality_script_end_to_end(tprl, causal_ckpt, data_root, tmp_path, capsys):
+def test_quality_command_end_to_end(tprl, causal_ckpt, data_root, tmp_path, capsys):
     out_json = tmp_path / "quality.json"
-    out = reward_gen_quality.main(["--data-config", str(_config(tmp_path, data_root)), "--ckpt", str(causal_ckpt),
-                                   "--ckpt", str(causal_ckpt), "--json", str(out_json)])
-    assert json.loads(out_json.read_text()) == out
+    main(["analyze", "reward-quality", "--data-config", str(_config(tmp_path, data_root)), "--ckpt",
+          str(causal_ckpt), "--ckpt", str(causal_ckpt), "--json", str(out_json)])
+    out = json.loads(out_json.read_text())
+    assert out == json.loads(json.dumps(reward_quality.reward_quality(_config(tmp_path, data_root),
+                                                                      [causal_ckpt, causal_ckpt])))
     assert out["pair_source"] == "context_causal" and out["causal"] is True
     assert out["checkpoints"] == [str(causal_ckpt)] * 2 and len(out["per_checkpoint"]) == 2
     model = load_module(causal_ckpt)
@@ -207,8 +210,7 @@ def test_quality_script_end_to_end(tprl, causal_ckpt, data_root, tmp_path, capsy
         assert all(out["mean"][q][k]["sem"] == 0 for k in result)  # the same checkpoint twice
         # own pair under the model's (causal) rule: what RewardGen(context_causal) trains on
         assert result["own_pair_accuracy"] == pytest.approx(float(model.pair_correct(pairs[q]).float().mean()))
-        scored = context_from_batch("trajectory_preference", pairs[q])
-        other = context_from_batch("trajectory_preference", pairs[q], prefix="pair_")
+        scored, other = pairs[q].context, pairs[q].pair
         assert not torch.equal(other.states_a, scored.states_a)  # another pair of the task, not the scored one
         ret_a, ret_b, _ = model.score_pair(other, scored)
         assert result["other_pair_accuracy"] == pytest.approx(float(((ret_a > ret_b) == (scored.preferred > 0.5))
@@ -225,24 +227,26 @@ def test_quality_script_end_to_end(tprl, causal_ckpt, data_root, tmp_path, capsy
     assert "| quality |" in printed and "causal" in printed
 
 
-def test_quality_script_refuses_mixed_pair_sources(causal_ckpt, data_root, tmp_path, capsys):
-    other = tmp_path / "other.ckpt"
-    module = RewardGenModule(**ENV, **SIZES)
-    checkpoint = {"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}
-    module.on_save_checkpoint(checkpoint)
-    torch.save(checkpoint, other)
-    with pytest.raises(SystemExit):
-        reward_gen_quality.main(["--data-config", str(_config(tmp_path, data_root)), "--ckpt", str(causal_ckpt),
-                                 str(other), "--json", str(tmp_path / "q.json")])
-    assert "mix pair_source values" in capsys.readouterr().err
+def test_quality_command_refuses_mixed_pair_sources(causal_ckpt, data_root, tmp_path, capsys):
+    other = save_untrained(RewardGenModule(**ENV, **SIZES), tmp_path / "other.ckpt")
+    with pytest.raises(SystemExit) as info:
+        main(["analyze", "reward-quality", "--data-config", str(_config(tmp_path, data_root)), "--ckpt",
+              str(causal_ckpt), str(other), "--json", str(tmp_path / "q.json")])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("icprl analyze reward-quality: error: --ckpt") and "mix pair_source values" in err, err
+    assert not (tmp_path / "q.json").exists()
 
 
 def test_a_reward_gen_saved_before_the_reading_rule_reads_the_whole_context():
-    from icprl_lightning.methods.icrg import check_stage1
+    from icprl_lightning.checkpoints import hyperparameters
+    from icprl_lightning.methods.icrg import build_reward_model, check_stage1
 
-    old = {"state_dim": 2, "action_dim": 5, "discrete": True, "n_layer": 1, "n_embd": 8, "n_head": 2,
-           "max_context": H, "dropout": 0.0}  # no "causal": written before context_causal existed
+    flat = {"state_dim": 2, "action_dim": 5, "discrete": True, "n_layer": 1, "n_embd": 8, "n_head": 2,
+            "max_context": H, "dropout": 0.0}  # no "causal": written before context_causal existed
+    old = hyperparameters({"hyper_parameters": flat})  # as the checkpoint reader hands it over
     arch = check_stage1("old.ckpt", old, {"state_dim": 2, "action_dim": 5, "discrete": True})
+    assert arch["backbone"] == {"n_layer": 1, "n_embd": 8, "n_head": 2, "dropout": 0.0}
     assert "causal" not in arch
-    assert InContextRewardModel(2, ActionSpec(True, 5), **arch).causal is False
+    assert build_reward_model(2, ActionSpec(True, 5), arch).causal is False
     assert check_stage1("new.ckpt", {**old, "causal": True}, {"state_dim": 2})["causal"] is True

@@ -10,10 +10,11 @@ from icprl_lightning.checkpoints import load_module
 from icprl_lightning.contexts import TrajectoryPreferenceContext
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.validation import HyperparameterError
 
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100)
-SIZES = dict(n_layer=1, n_embd=16, n_head=2)
+SIZES = dict(backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 H = 7
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -8,7 +8,7 @@ import pytest
 import torch
 from factories import cli_data_args, darkroom_data  # noqa: E402
 
-from icprl_lightning import TrajectoryPreferenceContext, load_agent
+from icprl_lightning import RewardTrajectoryContext, TrajectoryPreferenceContext, load_agent
 from icprl_lightning.cli import run_cli
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 from icprl_lightning.methods.dit import DITModule, swap_roles, unexplained_variance
@@ -25,11 +25,13 @@ from icprl_lightning.methods.losses import (
     trajectory_preference_loss,
 )
 from icprl_lightning.methods.reward_gen import RewardGenModule
+from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.samples import RewardTrajectorySamples
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 TPRL_TINY = dict(trajectories_per_task=3, val_trajectories_per_task=2, eval_contexts_per_task=2,
                  calibration_episodes=2, progress=False, batch_size=8)
-SIZES = dict(n_layer=1, n_embd=16, n_head=2)
+SIZES = dict(backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100)
 
 
@@ -218,12 +220,12 @@ def test_dit_context_reading_compares_the_own_context_with_another_tasks(tprl_re
     assert set(reading) == {"value_loss_own_context", "value_loss_other_task", "log_likelihood_own_context",
                             "log_likelihood_other_task"}
     context, scored = swap_roles(*model.labeled_trajectories(batch))
-    task = torch.cat([batch["task"], batch["task"]])
+    task = torch.cat([batch.task, batch.task])
     keep = torch.roll(task, 1) != task
     torch.testing.assert_close(reading["log_likelihood_own_context"],
                                model.log_likelihood(context, scored)[keep].mean())
     assert reading["log_likelihood_own_context"] != reading["log_likelihood_other_task"]
-    same_task = dict(batch, task=torch.zeros_like(batch["task"]))
+    same_task = batch._replace(task=torch.zeros_like(batch.task))
     assert model.context_reading(same_task) == {}
 
 
@@ -235,10 +237,8 @@ def test_dit_rejects_an_unknown_advantage():
 def test_dit_on_continuous_actions_weights_the_gaussian_mean_likelihood():
     torch.manual_seed(0)
     model = DITModule(state_dim=3, action_dim=2, discrete=False, max_context=10, value_epochs=0, **SIZES)
-    batch = {}
-    for side in "ab":
-        batch.update({f"states_{side}": torch.rand(4, 10, 3), f"actions_{side}": torch.rand(4, 10, 2) * 2 - 1,
-                      f"rewards_{side}": torch.rand(4, 10)})
+    batch = RewardTrajectorySamples(*(RewardTrajectoryContext(torch.rand(4, 10, 3), torch.rand(4, 10, 2) * 2 - 1,
+                                                              torch.rand(4, 10)) for _ in "ab"))
     a, b = model.labeled_trajectories(batch)
     mean = model.policy(a, b.states, torch.full((10,), 10))
     torch.testing.assert_close(model.log_likelihood(a, b), -(mean - b.actions).pow(2).sum(-1))
@@ -257,10 +257,6 @@ def test_icrg_trains_dit_on_rewardgen_labels_and_never_updates_rewardgen(tprl, r
     moved = _step_and_compare(model, batch)
     for name, m in moved.items():
         assert m == name.startswith("policy"), name
-    with pytest.raises(KeyError, match="pairs: true"):
-        model.loss({k: v for k, v in batch.items() if not k.startswith("pair_")})
-    with pytest.raises(KeyError, match="reward_trajectory"):
-        DITModule(**ENV, **SIZES).loss(batch)
 
 
 def test_icrg_refuses_a_checkpoint_that_is_not_rewardgen(tprl, tmp_path):
@@ -276,8 +272,7 @@ def test_rewardgen_queries_do_not_interact(tprl):
     torch.manual_seed(0)
     model = RewardGenModule(**ENV, **SIZES).eval()
     batch = next(iter(tprl.train_dataloader()))
-    ctx = TrajectoryPreferenceContext(*(batch[k][:2] for k in ("states_a", "actions_a", "states_b", "actions_b",
-                                                               "preferred")))
+    ctx = batch.context.map(lambda x: x[:2])
     states, actions = ctx.states_b[:, :6], ctx.actions_b[:, :6]
     together = model(ctx, states, actions)
     alone = torch.cat([model(ctx, states[:, i:i + 1], actions[:, i:i + 1]) for i in range(6)], dim=1)
@@ -350,7 +345,8 @@ def _tiny_cli(config: str, root, *extra: str):
     args = ["fit", "--config", str(REPO / config), "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
             "--data.init_args.root_dir", str(root), "--data.init_args.progress", "false",
             *cli_data_args("darkroom", **{k: v for k, v in TPRL_TINY.items() if k not in ("progress", "batch_size")}),
-            *(x for k, v in SIZES.items() for x in (f"--model.init_args.{k}", str(v))), *extra]
+            *(x for k, v in SIZES["backbone"].as_dict().items() for x in (f"--model.init_args.backbone.{k}", str(v))),
+            *extra]
     return run_cli(args)
 
 
@@ -370,7 +366,7 @@ def test_icrg_config_runs_under_fast_dev_run(data_root, reward_gen_ckpt, tmp_pat
     cli = _tiny_cli("configs/icrg_darkroom.yaml", data_root, "--model.init_args.reward_gen_checkpoint",
                     str(reward_gen_ckpt))
     assert cli.trainer.state.finished
-    assert cli.model.hparams.reward_gen_hparams["n_embd"] == SIZES["n_embd"]
+    assert cli.model.hparams.reward_gen_hparams["backbone"] == SIZES["backbone"].as_dict()  # stage 1's, from its file
 
 
 def test_paper_configs_have_the_paper_architecture():
@@ -379,7 +375,7 @@ def test_paper_configs_have_the_paper_architecture():
     for name in ("dp2t", "reward_gen", "icrg", "dit"):
         cfg = yaml.safe_load((REPO / f"configs/paper/{name}_darkroom_tprl.yaml").read_text())
         args = cfg["model"]["init_args"]
-        assert (args["n_layer"], args["n_embd"], args["n_head"]) == (4, 32, 4), name
+        assert args["backbone"] == {"n_layer": 4, "n_embd": 32, "n_head": 4}, name
         assert cfg["data"]["init_args"]["setting"]["init_args"]["trajectories_per_task"] == 5000
         assert args["lr"] == 3e-4
 
@@ -398,6 +394,7 @@ def test_rewardgen_beats_chance_on_heldout_pairs(tmp_path):
     callback = HeldOutPairAccuracyCallback()
     trainer = L.Trainer(max_epochs=3, logger=False, enable_checkpointing=False, enable_progress_bar=False,
                         enable_model_summary=False, callbacks=[callback], num_sanity_val_steps=0)
-    trainer.fit(RewardGenModule(**ENV, n_layer=2, n_embd=32, n_head=4, lr=1e-3), datamodule=dm)
+    model = RewardGenModule(**ENV, backbone=TransformerConfig(n_layer=2, n_embd=32, n_head=4), lr=1e-3)
+    trainer.fit(model, datamodule=dm)
     accuracy = callback.last_results["val/darkroom/heldout_pair_accuracy"]
     assert accuracy > 0.65, callback.last_results  # 240 held-out pairs: chance ± 4 sd is 0.5 ± 0.13

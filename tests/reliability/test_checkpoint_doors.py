@@ -21,6 +21,7 @@ from factories import tiny_darkroom_args
 from icprl_lightning.checkpoints import CHECKSUM_KEY, CLASS_KEY, SEAL_KEY, checksum, seal
 from icprl_lightning.cli import main
 from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.config import TransformerConfig
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = str(REPO / "configs/icpo_darkroom.yaml")
@@ -38,7 +39,8 @@ class Payload:
 def evil(tmp_path) -> tuple[Path, Path]:
     """A checkpoint-looking file whose unpickling runs code, and the marker that code would write."""
     marker = tmp_path / "marker"
-    module = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=10, n_layer=1, n_embd=16, n_head=2)
+    module = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=10,
+                        backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
     ckpt = {CLASS_KEY: "icprl_lightning.methods.icpo.ICPOModule", "state_dict": module.state_dict(),
             "hyper_parameters": dict(module.hparams), "loops": Payload(marker)}
     path = tmp_path / "evil.ckpt"

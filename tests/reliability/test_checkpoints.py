@@ -32,10 +32,11 @@ from icprl_lightning.cli import main
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
+from icprl_lightning.models.config import TransformerConfig
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=10)
-SIZES = dict(n_layer=1, n_embd=16, n_head=2)
+SIZES = dict(backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 pytestmark = pytest.mark.filterwarnings("ignore:Detected pickle protocol 4:UserWarning")  # the legacy pickle
 
 
@@ -185,8 +186,8 @@ def _bad_files(good: Path, d: Path) -> dict[str, tuple[Path, type[Exception], st
                              ValueError, "state_dict entry 'x' is not a tensor"),
         "class_not_a_string": (_edited(good, d / "list_class.ckpt", lambda c: c.update({CLASS_KEY: ["os"]})),
                                ValueError, not_allowed),
-        "unfit_hparams": (_edited(good, d / "unfit.ckpt", _restamped(lambda c: c["hyper_parameters"].update(
-            n_embd=15))), ValueError, "does not fit ICPOModule"),
+        "unfit_hparams": (_edited(good, d / "unfit.ckpt", _restamped(lambda c: c["hyper_parameters"]["backbone"].update(
+            n_embd=8))), ValueError, "does not fit ICPOModule"),
         "relabeled_class": (_edited(good, d / "relabeled.ckpt", _restamped(lambda c: c.update(
             {CLASS_KEY: "icprl_lightning.methods.reward_gen.RewardGenModule"}))), ValueError,
             "does not fit RewardGenModule"),

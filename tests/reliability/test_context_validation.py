@@ -1,4 +1,4 @@
-"""Invalid contexts are refused (issue 16, point 3): at ``Agent.reset`` / ``act`` / ``act_each_prefix`` and at
+"""Invalid contexts are refused: at ``Agent.reset`` / ``act`` / ``act_each_prefix`` and at
 dataset load, every error names the field; lossless dtype changes (float64, int32, bool labels, numpy) convert
 and act exactly as the float32/int64 tensors do."""
 
@@ -24,9 +24,10 @@ from icprl_lightning.io import sha256
 from icprl_lightning.methods.dit import DITModule
 from icprl_lightning.methods.dpt import DP2TModule, DPTModule
 from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.config import TransformerConfig
 
 B, T, S, N_ACTIONS, ACTION_DIM, MAX_CONTEXT = 3, 4, 2, 5, 3, 10
-TINY = dict(max_context=MAX_CONTEXT, n_layer=1, n_embd=16, n_head=2)
+TINY = dict(max_context=MAX_CONTEXT, backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 KINDS = ("step_preference", "trajectory_preference", "reward", "reward_trajectory")
 MODULES = {"step_preference": (ICPOModule, {}), "trajectory_preference": (DP2TModule,
                                                                           {"context_kind": "trajectory_preference"}),

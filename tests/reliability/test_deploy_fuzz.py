@@ -1,4 +1,4 @@
-"""Property-based fuzz of the deployment API (issue 16, point 6): ``Agent.reset`` / ``act`` / ``act_each_prefix``
+"""Property-based fuzz of the deployment API: ``Agent.reset`` / ``act`` / ``act_each_prefix``
 over shapes, dtypes, containers, values (NaN, ±inf, huge, negative, out-of-range indices, wrong ranks) and
 orders of calls, on tiny random-weight policies.
 
@@ -19,9 +19,10 @@ from hypothesis import strategies as st
 from icprl_lightning.contexts import RewardContext, StepPreferenceContext
 from icprl_lightning.methods.dpt import DPTModule
 from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.config import TransformerConfig
 
 S, N_ACTIONS, ACTION_DIM, MAX_CONTEXT = 2, 5, 3, 10
-TINY = dict(state_dim=S, max_context=MAX_CONTEXT, n_layer=1, n_embd=16, n_head=2)
+TINY = dict(state_dim=S, max_context=MAX_CONTEXT, backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 FUZZ = dict(deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 
 DTYPES = [torch.float16, torch.bfloat16, torch.float32, torch.float64, torch.int8, torch.int16, torch.int32,

@@ -1,5 +1,5 @@
 """Every user-set hyperparameter is range-checked at construction, and model/data/callback kinds are
-checked by ``icprl fit|validate|test`` before any data is generated (issue 16, point 4).
+checked by ``icprl fit|validate|test`` before any data is generated.
 
 Each bad value raises a ``ValueError`` naming its key; data arguments given through the CLI leave the
 data root empty. Method/data/callback mismatches fail in the CLI's ``before_<subcommand>`` hook, before
@@ -29,16 +29,19 @@ from icprl_lightning.methods.dpt import DP2TModule, DPTModule
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.validation import HyperparameterError, check_pairing, pairing_errors
 
 SIZES = dict(state_dim=2, action_dim=5, discrete=True, max_context=10)
-REWARD_GEN_HP = dict(n_layer=1, n_embd=8, n_head=2, max_context=10, dropout=0.0)
+REWARD_GEN_HP = dict(backbone=dict(n_layer=1, n_embd=8, n_head=2, dropout=0.0), max_context=10)
 
 # ---- the methods --------------------------------------------------------------------------------------
 
-ARCHITECTURE_CASES = [("n_layer", 0), ("n_embd", 0), ("n_head", 0), ("n_head", 3), ("dropout", -0.1),
-                      ("dropout", 1.0), ("lr", 0.0), ("lr", -1e-3), ("lr", math.nan), ("weight_decay", -0.1),
-                      ("max_context", 0), ("state_dim", -1), ("action_dim", 0), ("n_layer", 1.5)]
+ARCHITECTURE_CASES = [("lr", 0.0), ("lr", -1e-3), ("lr", math.nan), ("weight_decay", -0.1), ("max_context", 0),
+                      ("state_dim", -1), ("action_dim", 0)]
+# the backbone's sizes: checked once, by TransformerConfig, however a method is given them
+BACKBONE_CASES = [("n_layer", 0), ("n_embd", 0), ("n_head", 0), ("n_head", 3), ("dropout", -0.1), ("dropout", 1.0),
+                  ("n_layer", 1.5), ("n_embd", True), ("dropout", math.inf)]
 METHODS = {
     "ICPOModule": lambda **kw: ICPOModule(**{**SIZES, **kw}),
     "DPTModule": lambda **kw: DPTModule(**{**SIZES, **kw}),
@@ -66,6 +69,25 @@ def test_method_rejects_bad_hyperparameter(method, key, value):
     with pytest.raises(ValueError, match=key) as err:
         METHODS[method](**{key: value})
     assert method in str(err.value)
+
+
+@pytest.mark.parametrize(("key", "value"), BACKBONE_CASES)
+def test_backbone_rejects_bad_size(key, value):
+    with pytest.raises(HyperparameterError, match=rf"^backbone\.{key}: must "):
+        TransformerConfig(**{key: value})
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize(("key", "value"), BACKBONE_CASES[:4])
+def test_method_rejects_bad_backbone_given_as_a_mapping(method, key, value):
+    with pytest.raises(HyperparameterError, match=rf"^backbone\.{key}: must "):
+        METHODS[method](backbone={key: value})
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_method_rejects_an_unknown_backbone_key(method):
+    with pytest.raises(HyperparameterError, match=r"^backbone: has no key 'n_layers'; its keys are \['n_layer'"):
+        METHODS[method](backbone={"n_layers": 2})
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
@@ -192,7 +214,6 @@ SETTING_ARG = "--data.init_args.setting.init_args."
 CLI_VALUE_CASES = [
     ("configs/icpo_darkroom.yaml", "beta", ["--model.init_args.beta", "0"]),
     ("configs/icpo_darkroom.yaml", "lam", ["--model.init_args.lam", "-1"]),
-    ("configs/icpo_darkroom.yaml", "n_layer", ["--model.init_args.n_layer", "0"]),
     ("configs/icpo_darkroom.yaml", "squared_distance", ["--model.init_args.squared_distance", "true"]),
     ("configs/icpo_darkroom.yaml", "trajectories_per_task", [SETTING_ARG + "trajectories_per_task", "0"]),
     ("configs/icpo_darkroom.yaml", "trajectories_per_task", [SETTING_ARG + "trajectories_per_task", "1"]),  # pairs
@@ -209,6 +230,15 @@ def test_cli_bad_value_fails_before_generation(config, key, extra, tmp_path):
     with pytest.raises(HyperparameterError) as err:  # the constructor's own error, not jsonargparse's wrapper
         _fit(config, tmp_path, *extra)
     assert f" {key} " in str(err.value) or f"'s {key} " in str(err.value)
+    assert _nothing_generated(tmp_path)
+
+
+@pytest.mark.parametrize("extra", [["--model.init_args.backbone.n_layer", "0"],
+                                   ["--model.init_args.backbone", "{n_embd: 30, n_head: 4}"]])
+def test_cli_bad_backbone_fails_before_generation(extra, tmp_path):
+    with pytest.raises(HyperparameterError, match=r"^backbone\.n_(layer|head): must ") as err:
+        _fit("configs/icpo_darkroom.yaml", tmp_path, *extra)
+    assert "\n" not in str(err.value)
     assert _nothing_generated(tmp_path)
 
 

@@ -4,21 +4,28 @@ Each module may import only from its own layer or the layers below it. And the s
 "reward-free means reward-free": nothing under ``models/`` or ``methods/`` (nor ``deploy.py``, which they
 use) imports a family, an oracle, an annotator, a setting (generator) or any dataset code — so no path exists by which
 a model could be handed a goal, a reward of the simulator or A*.
+
+Outside the package, ``experiments/`` holds one-off investigations: neither the package nor the tests import
+them (nor a ``scripts/`` directory), or put either directory on ``sys.path`` to import its files by name.
 """
 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[2] / "icprl_lightning"
+REPO = Path(__file__).resolve().parents[2]
+PACKAGE = REPO / "icprl_lightning"
 
 # lowest first; a module's layer is the first entry its dotted name starts with
 LAYERS = [
     ("contexts", "preferences", "io", "metrics", "validation",   # ground: shared vocabulary, argument checks,
-     "progress"),                                                 # progress lines
+     "progress", "data_contract", "samples"),                     # progress lines, what a DataModule serves,
+                                                                  # typed training samples
+    ("sb3",),                                       # SB3 agents evaluated while they train (oracle, baselines)
     ("families",),                                  # task families, their envs and oracles
     ("annotators",),                                # who labels a pair (sees the oracle's utilities)
     ("data",),                                      # settings (generators), store, DataModules
@@ -92,3 +99,63 @@ def test_the_check_sees_lazy_imports(tmp_path):
     probe = tmp_path / "probe.py"
     probe.write_text("def f():\n    from icprl_lightning.families.darkroom import oracle\n    return oracle\n")
     assert _imports(probe) == {"families.darkroom"}
+
+
+OUTSIDE = ("experiments", "scripts")  # never imported by the package or the tests
+PATH_CALLS = {"insert", "append", "extend", "syspath_prepend"}  # sys.path.insert(...), monkeypatch.syspath_prepend
+
+
+def _investigations() -> set[str]:
+    """The module names a file of ``experiments/`` or ``scripts/`` would be imported by, once on ``sys.path``."""
+    return {p.stem for d in OUTSIDE for p in (REPO / d).glob("*.py")}
+
+
+def _outside_uses(path: Path, names: set[str]) -> list[str]:
+    """Imports of ``experiments``/``scripts`` (as packages, or their files by name) and sys.path edits naming them."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            modules = [node.module]
+        elif isinstance(node, ast.Import):
+            modules = [a.name for a in node.names]
+        else:
+            modules = []
+        found += [f"line {node.lineno}: import {m}" for m in modules
+                  if m.split(".")[0] in OUTSIDE or m.split(".")[0] in names]
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in PATH_CALLS:
+            strings = [c.value for arg in node.args for c in ast.walk(arg)
+                       if isinstance(c, ast.Constant) and isinstance(c.value, str)]
+            if any(re.search(rf"(^|/)({'|'.join(OUTSIDE)})(/|$)", v) for v in strings):
+                found.append(f"line {node.lineno}: {node.func.attr}({', '.join(map(repr, strings))})")
+    return sorted(found, key=lambda hit: int(hit.split(":")[0].removeprefix("line ")))
+
+
+SOURCES = sorted([*PACKAGE.rglob("*.py"), *(REPO / "tests").rglob("*.py")])
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=[str(p.relative_to(REPO)) for p in SOURCES])
+def test_neither_the_package_nor_the_tests_reach_experiments_or_scripts(path):
+    # a test module named like an investigation would be a false hit: only names that are not the package's own
+    names = _investigations() - {p.stem for p in PACKAGE.rglob("*.py")}
+    assert not _outside_uses(path, names), f"{path.relative_to(REPO)} reaches {'/ or '.join(OUTSIDE)}/: " \
+        f"{_outside_uses(path, names)}"
+
+
+def test_the_outside_check_sees_imports_and_sys_path_edits(tmp_path):
+    probe = tmp_path / "probe.py"
+    probe.write_text("import sys\nfrom pathlib import Path\n"
+                     "sys.path.insert(0, str(Path(__file__).parents[2] / 'scripts'))\n"
+                     "import reach_probe\nfrom experiments.x import y\nmonkeypatch.syspath_prepend('experiments')\n")
+    assert _outside_uses(probe, {"reach_probe"}) == [
+        "line 3: insert('scripts')", "line 4: import reach_probe", "line 5: import experiments.x",
+        "line 6: syspath_prepend('experiments')"]
+    probe.write_text("import json\nfrom icprl_lightning.evaluation import online_mdp\nsys.path.insert(0, 'src')\n")
+    assert _outside_uses(probe, {"reach_probe"}) == []
+
+
+def test_experiments_are_headed_by_question_date_and_answer():
+    for path in sorted((REPO / "experiments").glob("*.py")):
+        doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+        assert re.match(r"Question: .+\n\nAsked: \d{4}-\d{2}-\d{2}", doc, re.S), path.name
+        assert "\nAnswer (" in doc, path.name
+    assert not (REPO / "scripts").exists(), "scripts/ is gone: one-off investigations live in experiments/"

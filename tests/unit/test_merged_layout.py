@@ -11,8 +11,10 @@ from icprl_lightning import StepPreferenceContext, load_agent
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.losses import icpo_loss
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.models.tokenizers import preferred_first
+from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError
 
 TOL = dict(atol=1e-5, rtol=1e-5)
@@ -21,7 +23,8 @@ SPECS = [ActionSpec(discrete=True, size=5), ActionSpec(discrete=False, size=3)]
 
 def _policy(spec: ActionSpec, seed: int = 0, normalize: bool = False) -> InContextPolicy:
     torch.manual_seed(seed)
-    policy = InContextPolicy("step_preference", 2, spec, n_layer=2, n_embd=16, n_head=2, max_context=12,
+    policy = InContextPolicy("step_preference", 2, spec,
+                             backbone=TransformerConfig(n_layer=2, n_embd=16, n_head=2), max_context=12,
                              layout="merged", normalize_inputs=normalize)
     with torch.no_grad():
         for p in policy.parameters():
@@ -81,20 +84,21 @@ def test_position_j_sees_the_first_j_comparisons_and_the_next_state_only(spec):
 
 
 def test_appended_policy_has_no_causal_pass():
-    policy = InContextPolicy("step_preference", 2, SPECS[0], n_layer=1, n_embd=16, n_head=2, max_context=4)
+    policy = InContextPolicy("step_preference", 2, SPECS[0],
+                             backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2), max_context=4)
     with pytest.raises(ValueError, match="merged layout's training pass"):
         policy.next_step_outputs(_context(SPECS[0], t=4))
 
 
 def _icpo(layout: str, **kwargs) -> ICPOModule:
     torch.manual_seed(0)
-    return ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=10, n_layer=2, n_embd=16, n_head=2,
+    return ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=10,
+                      backbone=TransformerConfig(n_layer=2, n_embd=16, n_head=2),
                       beta=0.5, lam=1.0, pair_source="next", layout=layout, **kwargs)
 
 
-def _batch(context: StepPreferenceContext) -> dict[str, torch.Tensor]:
-    return {"states": context.states, "actions": context.actions, "alt_actions": context.alt_actions,
-            "preferred": context.preferred}
+def _batch(context: StepPreferenceContext) -> ContextSamples:
+    return ContextSamples(context)
 
 
 def test_icpo_next_loss_is_the_same_objective_in_both_layouts():

@@ -11,9 +11,10 @@ from factories import darkroom_data
 
 from icprl_lightning import RewardTrajectoryContext, load_agent
 from icprl_lightning.methods.dit import DITModule
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.normalization import InputNormalizer
 
-SIZES = dict(n_layer=1, n_embd=16, n_head=2)
+SIZES = dict(backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100)
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -1,4 +1,4 @@
-"""``queries_per_context``: a training step scores k of the H query positions (issue 12); the model is unchanged."""
+"""``queries_per_context``: a training step scores k of the H query positions; the model is unchanged."""
 
 from __future__ import annotations
 
@@ -6,27 +6,30 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.methods.dpt import DP2TModule
 from icprl_lightning.methods.icpo import ICPOModule
+from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError
 
 H = 12
 
 
-def _batch(b: int = 3) -> dict[str, torch.Tensor]:
+def _batch(b: int = 3) -> ContextSamples:
     g = torch.Generator().manual_seed(0)
-    ctx = {"states": torch.randint(0, 5, (b, H, 2), generator=g).float(),
-           "actions": torch.randint(0, 5, (b, H), generator=g), "alt_actions": torch.randint(0, 5, (b, H), generator=g),
-           "preferred": torch.randint(0, 2, (b, H), generator=g).float()}
-    batch = {**ctx, **{f"pair_{k}": v.flip(0) for k, v in ctx.items()}}
-    batch["query_states"] = torch.randint(0, 5, (b, H, 2), generator=g).float()
-    batch["optimal_actions"] = torch.randint(0, 5, (b, H), generator=g)
-    return batch
+    ctx = StepPreferenceContext(torch.randint(0, 5, (b, H, 2), generator=g).float(),
+                                torch.randint(0, 5, (b, H), generator=g), torch.randint(0, 5, (b, H), generator=g),
+                                torch.randint(0, 2, (b, H), generator=g).float())
+    return ContextSamples(ctx, pair=ctx.map(lambda x: x.flip(0)),
+                          query_states=torch.randint(0, 5, (b, H, 2), generator=g).float(),
+                          optimal_actions=torch.randint(0, 5, (b, H), generator=g))
 
 
 def _module(cls, **kw):
     torch.manual_seed(0)
-    return cls(state_dim=2, action_dim=5, discrete=True, max_context=H, n_layer=2, n_embd=16, n_head=2, **kw)
+    return cls(state_dim=2, action_dim=5, discrete=True, max_context=H,
+               backbone=TransformerConfig(n_layer=2, n_embd=16, n_head=2), **kw)
 
 
 def test_training_draws_k_sorted_positions_and_validation_scores_all():
@@ -43,9 +46,8 @@ def test_the_k_query_loss_is_the_full_loss_restricted_to_the_drawn_positions():
     positions, averaged."""
     batch = _batch()
     module = _module(DP2TModule, queries_per_context=5).train()
-    context = module.context(batch)
-    full = module.policy(context, batch["query_states"], torch.arange(1, H + 1))
-    per_query = F.cross_entropy(full.transpose(1, 2), batch["optimal_actions"], reduction="none")  # (B, H)
+    full = module.policy(batch.context, batch.query_states, torch.arange(1, H + 1))
+    per_query = F.cross_entropy(full.transpose(1, 2), batch.optimal_actions, reduction="none")  # (B, H)
     torch.manual_seed(7)
     positions = module.query_positions(H, torch.device("cpu"))
     torch.manual_seed(7)
@@ -94,7 +96,7 @@ def test_icpo_scores_the_other_trajectory_in_shuffled_order_by_default():
 
 
 def test_icpo_shuffled_loss_is_the_aligned_loss_on_permuted_pairs():
-    """The shuffled loss equals the aligned loss on a batch whose pair_* fields were permuted by the same draw."""
+    """The shuffled loss equals the aligned loss on a batch whose pair was permuted by the same draw."""
     batch = _batch()
     module = _module(ICPOModule, beta=0.5, lam=1.0).train()
     torch.manual_seed(11)
@@ -102,7 +104,7 @@ def test_icpo_shuffled_loss_is_the_aligned_loss_on_permuted_pairs():
     torch.manual_seed(11)
     steps = module.scored_steps(3, H, torch.device("cpu"))
     rows = torch.arange(3)[:, None]
-    permuted = {k: (v[rows, steps] if k.startswith("pair_") else v) for k, v in batch.items()}
+    permuted = batch._replace(pair=batch.pair.map(lambda x: x[rows, steps]))
     module.hparams.pair_steps = "aligned"
     aligned, _ = module.loss(permuted)
     assert shuffled.item() == pytest.approx(aligned.item(), rel=1e-6)

@@ -105,7 +105,7 @@ def test_exception_during_write_cleans_up(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-# ---- overwrite replaces only our own datasets (issue 16) ----------------------------------------------------
+# ---- overwrite replaces only our own datasets ----------------------------------------------------
 
 TINY_GEN = dict(trajectories_per_task=3, val_trajectories_per_task=2, eval_contexts_per_task=1,
                 calibration_episodes=2, progress=False)

@@ -3,6 +3,7 @@
 import torch
 
 from icprl_lightning.contexts import ActionSpec, StepPreferenceContext
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.models.transformer import ENCODE_ROWS, CausalTransformer, query_mask
 
@@ -21,7 +22,7 @@ def test_query_mask():
 
 def test_query_output_depends_only_on_visible_context():
     torch.manual_seed(0)
-    net = CausalTransformer(n_layer=2, n_embd=16, n_head=2, max_context=10).eval()
+    net = CausalTransformer(TransformerConfig(n_layer=2, n_embd=16, n_head=2), max_context=10).eval()
     ctx, q = torch.randn(2, 6, 16), torch.randn(2, 3, 16)
     out = net(ctx, q, torch.tensor([2, 4, 6]))
     ctx2 = ctx.clone()
@@ -33,7 +34,7 @@ def test_query_output_depends_only_on_visible_context():
 
 def test_cached_queries_equal_the_full_forward():
     torch.manual_seed(0)
-    net = CausalTransformer(n_layer=3, n_embd=32, n_head=4, max_context=20).eval()
+    net = CausalTransformer(TransformerConfig(n_layer=3, n_embd=32, n_head=4), max_context=20).eval()
     ctx, q = torch.randn(4, 20, 32), torch.randn(4, 5, 32)
     full = net(ctx, q, torch.full((5,), 20))
     cached = net.query(net.encode(ctx), q)
@@ -44,7 +45,7 @@ def test_cached_queries_equal_the_full_forward():
 def test_encode_in_row_chunks_equals_the_whole_batch():
     """``encode`` runs the batch ENCODE_ROWS rows at a time: a ragged last chunk, single and multi-token queries."""
     torch.manual_seed(0)
-    net = CausalTransformer(n_layer=2, n_embd=16, n_head=2, max_context=8).eval()
+    net = CausalTransformer(TransformerConfig(n_layer=2, n_embd=16, n_head=2), max_context=8).eval()
     b = 2 * ENCODE_ROWS + 3
     ctx = torch.randn(b, 8, 16)
     cache = net.encode(ctx)
@@ -56,7 +57,8 @@ def test_encode_in_row_chunks_equals_the_whole_batch():
 def test_policy_cache_agrees_for_discrete_and_continuous():
     torch.manual_seed(0)
     for spec in (ActionSpec(True, 5), ActionSpec(False, 4)):
-        pol = InContextPolicy("step_preference", 3, spec, n_layer=2, n_embd=16, n_head=2, max_context=12).eval()
+        pol = InContextPolicy("step_preference", 3, spec,
+                              backbone=TransformerConfig(n_layer=2, n_embd=16, n_head=2), max_context=12).eval()
         def acts(spec=spec):
             return torch.randint(0, 5, (2, 12)) if spec.discrete else torch.rand(2, 12, 4) * 2 - 1
 
@@ -73,7 +75,7 @@ def test_policy_cache_agrees_for_discrete_and_continuous():
 def test_preference_token_is_invariant_to_slot_order():
     """(a, a', y=1) and (a', a, y=0) are the same comparison and give the same output."""
     torch.manual_seed(0)
-    pol = InContextPolicy("step_preference", 2, ActionSpec(True, 5), 2, 16, 2, 8).eval()
+    pol = InContextPolicy("step_preference", 2, ActionSpec(True, 5), TransformerConfig(2, 16, 2), 8).eval()
     s, a, b = torch.randn(1, 8, 2), torch.randint(0, 5, (1, 8)), torch.randint(0, 5, (1, 8))
     y = torch.randint(0, 2, (1, 8)).float()
     obs = torch.randn(1, 1, 2)
