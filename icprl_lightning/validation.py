@@ -6,12 +6,13 @@ key and the allowed range::
 
     ICPOModule: beta must be > 0, got 0
 
-``check_pairing`` is what ``icprl fit|validate|test`` runs after instantiation and before any work: the
-model's context kinds (``consumes``) against the data's ``context_kind``, the data flags the model needs
-(``needs_pairs`` / ``needs_query_labels``) and the data each callback reads (``bandit_suites``,
-``evaluation_suites``, ``heldout_pairs``).
+``check_pairing`` is what ``icprl fit|validate|test`` runs after instantiation and before any work (and a
+method's ``on_fit_start`` again, for a fit without the CLI): the model's context kinds (``consumes``) against
+the data's ``context_kind``, the data flags the model needs (``needs_pairs`` / ``needs_query_labels``) and the
+held-out evaluations each callback declares in ``requires_data`` against those the data ``offers``. The data
+side is read through the data contract (``data_contract.PreferenceData``): its declarations, not its class.
 
-Ground floor: imports nothing of the package but ``contexts`` (the known kinds) and numpy.
+Ground floor: imports nothing of the package but ``contexts`` (the known kinds), ``data_contract`` and numpy.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from icprl_lightning.contexts import CONTEXT_TYPES
+from icprl_lightning.data_contract import EVALUATIONS, PreferenceData, ReadsData, missing_members
 
 
 class HyperparameterError(ValueError):
@@ -127,18 +129,10 @@ def check_range(owner: str, key: str, value: Any) -> tuple[float, float] | None:
     return low, high
 
 
-def check_transformer(owner: str, n_layer: Any, n_embd: Any, n_head: Any, dropout: Any, lr: Any,
-                      weight_decay: Any, max_context: Any) -> None:
-    """The shared architecture and optimizer arguments of every method."""
-    check_int(owner, "n_layer", n_layer, 1)
-    check_int(owner, "n_embd", n_embd, 1)
-    check_int(owner, "n_head", n_head, 1)
-    if n_embd % n_head:
-        raise HyperparameterError(f"{owner}: n_embd must be divisible by n_head, got n_embd={n_embd}, n_head={n_head}")
-    check_interval(owner, "dropout", dropout, 0.0, 1.0, closed="left")
+def check_optimizer(owner: str, lr: Any, weight_decay: Any) -> None:
+    """The optimizer arguments of every method (the backbone's sizes check themselves: ``models/config.py``)."""
     check_positive(owner, "lr", lr)
     check_nonnegative(owner, "weight_decay", weight_decay)
-    check_int(owner, "max_context", max_context, 1)
 
 
 def check_sizes(owner: str, state_dim: Any, action_dim: Any) -> None:
@@ -152,23 +146,10 @@ def check_kind(owner: str, key: str, kind: Any) -> str:
 
 # ---- the CLI's pairing checks --------------------------------------------------------------------------
 
-# What a callback reads from the DataModule (by class name, so this module imports no callback). A
-# callback class may instead declare ``requires_data = ("<DataModule method>", ...)``.
-CALLBACK_NEEDS: dict[str, tuple[str, ...]] = {
-    "BanditRegretCallback": ("bandit_suites",),
-    "InContextRolloutCallback": ("evaluation_suites",),
-    "HeldOutPairAccuracyCallback": ("heldout_pairs",),
-}
 # what serves a batch field a model may read beyond its context kind's own
 _ORACLE_ADVANTAGES = ("reward_trajectory data with the oracle's A* "
                       "(--data.init_args.setting.init_args.oracle_advantages true)")
 _FIELD_HINTS = {"advantages_a": _ORACLE_ADVANTAGES, "advantages_b": _ORACLE_ADVANTAGES}
-_FEATURE_HINTS = {
-    "bandit_suites": "dueling-bandit data (setting icprl_lightning.data.settings.BanditDuels)",
-    "evaluation_suites": "data with held-out in-context rollouts (an MDP setting: StepPreferences, "
-                         "TrajectoryPairs, RewardContexts, RewardTrajectories)",
-    "heldout_pairs": "trajectory_preference data (setting icprl_lightning.data.settings.TrajectoryPairs)",
-}
 
 
 def consumed_kinds(model: Any) -> tuple[str, ...] | None:
@@ -180,50 +161,34 @@ def consumed_kinds(model: Any) -> tuple[str, ...] | None:
     return (kinds,) if isinstance(kinds, str) else tuple(kinds)
 
 
-def data_offers(datamodule: Any, feature: str) -> bool:
-    """Does ``datamodule`` serve ``feature`` (``bandit_suites``, ``evaluation_suites``, ``heldout_pairs``)?
-
-    A DataModule may say so with ``offers`` (a set of names); otherwise it offers what it has a method for.
-    """
-    offers = getattr(datamodule, "offers", None)
-    if offers is not None:
-        return feature in offers
-    return callable(getattr(datamodule, feature, None))
-
-
 def pairing_errors(model: Any, datamodule: Any, callbacks: Iterable[Any] = ()) -> list[str]:
     """Every mismatch between the model, the data and the callbacks, one sentence each (empty: they fit)."""
-    errors = []
     m_name, d_name = type(model).__name__, type(datamodule).__name__
+    if not isinstance(datamodule, PreferenceData):
+        return [f"{d_name} does not implement the data contract (icprl_lightning.data_contract.PreferenceData): "
+                f"it lacks {missing_members(datamodule)}"]
+    errors = []
     kinds = consumed_kinds(model)
-    produced = getattr(datamodule, "context_kind", None)
-    if kinds is not None and produced is not None and produced not in kinds:
-        where = f" ({datamodule.data_dir})" if getattr(datamodule, "data_dir", None) else ""
-        errors.append(f"{m_name} trains on {' or '.join(kinds)} contexts but {d_name}{where} holds {produced} "
-                      f"contexts: pick a method for {produced} data or a data setting of kind {kinds[0]}")
-    for flag in ("pairs", "query_labels"):
-        needs = getattr(model, f"needs_{flag}", False)
-        has = getattr(datamodule, flag, None)
-        if needs and has is False:
+    produced = datamodule.context_kind
+    if kinds is not None and produced not in kinds:
+        errors.append(f"{m_name} trains on {' or '.join(kinds)} contexts but {d_name} ({datamodule.path}) holds "
+                      f"{produced} contexts: pick a method for {produced} data or a data setting of kind {kinds[0]}")
+    for flag, served in (("pairs", datamodule.pairs), ("query_labels", datamodule.query_labels)):
+        if getattr(model, f"needs_{flag}", False) and not served:
             errors.append(f"{m_name} (as configured) needs {d_name} with {flag}: true; set "
                           f"--data.init_args.{flag} true")
     fields = tuple(getattr(model, "needs_batch_fields", ()))
-    served = getattr(datamodule, "batch_fields", None)
-    if fields and callable(served):
-        missing = [f for f in fields if f not in served()]
-        if missing:
-            hints = sorted({_FIELD_HINTS.get(f, f) for f in missing})
-            errors.append(f"{m_name} (as configured) reads the batch fields {missing}, which {d_name} does not serve: "
-                          f"it needs {', '.join(hints)}")
+    missing = [f for f in fields if f not in datamodule.batch_fields()]
+    if missing:
+        hints = sorted({_FIELD_HINTS.get(f, f) for f in missing})
+        errors.append(f"{m_name} (as configured) reads the batch fields {missing}, which {d_name} does not serve: "
+                      f"it needs {', '.join(hints)}")
     for cb in callbacks:
-        needs = getattr(cb, "requires_data", None)
-        if needs is None:
-            needs = next((CALLBACK_NEEDS[k.__name__] for k in type(cb).__mro__ if k.__name__ in CALLBACK_NEEDS), ())
-        for feature in needs:
-            if not data_offers(datamodule, feature):
-                served = f" ({produced} contexts)" if produced else ""
-                errors.append(f"{type(cb).__name__} reads {feature}() of the data, but {d_name}{served} has none: "
-                              f"it needs {_FEATURE_HINTS.get(feature, feature)}, or drop the callback")
+        for evaluation in cb.requires_data if isinstance(cb, ReadsData) else ():
+            if evaluation not in datamodule.offers:
+                errors.append(f"{type(cb).__name__} reads {evaluation}() of the data, but {d_name} ({produced} "
+                              f"contexts) has none: it needs {EVALUATIONS.get(evaluation, evaluation)}, or drop the "
+                              "callback")
     return errors
 
 

@@ -26,6 +26,8 @@ from icprl_lightning.evaluation.report import regret_table, show_table
 
 
 class BanditRegretCallback(L.Callback):
+    requires_data = ("bandit_suites",)  # the held-out evaluation it reads (checked against the data's ``offers``)
+
     def __init__(self, every_n_epochs: int = 1, seed: int = 0, chunk_size: int = 32, method: str | None = None,
                  greedy: bool | None = None, print_table: bool = True) -> None:
         self.every_n_epochs = every_n_epochs

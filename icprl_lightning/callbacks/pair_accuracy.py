@@ -15,11 +15,14 @@ import sys
 
 import lightning as L
 import torch
+from lightning.fabric.utilities.apply_func import move_data_to_device
 
 from icprl_lightning.callbacks.distributed import log_broadcast, on_rank_zero
 
 
 class HeldOutPairAccuracyCallback(L.Callback):
+    requires_data = ("heldout_pairs",)  # the held-out evaluation it reads (checked against the data's ``offers``)
+
     def __init__(self) -> None:
         self.last_results: dict[str, float] = {}
 
@@ -43,6 +46,6 @@ class HeldOutPairAccuracyCallback(L.Callback):
         """Per quality, whether each held-out pair is ordered as its label (on the CPU)."""
         correct = {}
         for quality, batch in trainer.datamodule.heldout_pairs().items():
-            batch = {k: v.to(pl_module.device) for k, v in batch.items()}
+            batch = move_data_to_device(batch, pl_module.device)  # typed samples, moved field by field
             correct[quality] = pl_module.pair_correct(batch).float().cpu()
         return correct

@@ -26,6 +26,8 @@ from icprl_lightning.evaluation.rollout import rollout_in_context, suite_env, su
 
 
 class InContextRolloutCallback(L.Callback):
+    requires_data = ("evaluation_suites",)  # the held-out evaluation it reads (checked against the data's ``offers``)
+
     def __init__(self, every_n_epochs: int = 1, greedy: bool | None = None, seed: int = 0,
                  print_table: bool = True, diagnostics: list[str] | tuple[str, ...] = ()) -> None:
         for diagnostic in diagnostics:

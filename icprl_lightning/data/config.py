@@ -1,4 +1,4 @@
-"""Build a config's DataModule without the CLI (no model, trainer or logger): scripts and tests use it.
+"""Build a config's DataModule without the CLI (no model, trainer or logger): commands and tests use it.
 
 Configs stack as on the command line (later files override earlier ones), and ``overrides`` set
 DataModule arguments by name (``root_dir=..., progress=False``).

@@ -33,8 +33,9 @@ This module owns what every dataset shares:
   training epoch drops the last ``len % world_size`` rows (no row twice); validation pads to equal
   shards, as Lightning does, so every rank runs the same number of steps. One process draws exactly
   the batches it always did.
-* Every batch of an MDP family carries ``task`` (int64 (B,)), the training-task index ``row // per_task``
-  of each row (bandit batches do not: their val problems are not the training ones, and nothing reads it).
+* Every batch of a setting with ``has_folds`` (the MDP settings) carries ``task`` (int64 (B,)), the
+  training-task index ``row // per_task`` of each row (bandit batches do not: their val problems are not the
+  training ones, and nothing reads it).
 * Cross-fitting (ICRG's labels, ``methods/icrg.py``): ``folds=k, holdout_fold=i`` leaves the rows of every
   training task t with ``t % k == i`` out of the train *and* val loaders, so a RewardGen fitted on them has
   never seen fold i's tasks and can label them as it would label an unseen task. The dataset on disk, its
@@ -48,6 +49,10 @@ This module owns what every dataset shares:
   beside the checkpoint's checksummed part (``checkpoints.py``); resuming a fit with other fold settings
   is refused (validating or testing with others is not).
 * The evaluation suites of the held-out tasks, built by the setting from the stored evaluation splits.
+
+What it serves is the data contract (``data_contract.PreferenceData``), and which of it applies is read from
+the setting's class-level declarations (``data/settings/base.py``: ``family_type``, ``per_task_keys``,
+``has_folds``, ``has_query_labels``, ``evaluations``), so this module knows no family and no setting by name.
 """
 
 from __future__ import annotations
@@ -61,14 +66,12 @@ from typing import Any
 
 import lightning as L
 import numpy as np
-import torch
 from torch.utils.data import BatchSampler, DataLoader, DistributedSampler, RandomSampler, Sampler, SequentialSampler
 
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.data.batches import LABEL_FIELDS, ContextBatches
 from icprl_lightning.data.schema import DatasetSchema, check_dataset
-from icprl_lightning.data.settings.bandit_duels import BanditDuels
-from icprl_lightning.data.settings.base import MDPSetting, Setting
+from icprl_lightning.data.settings.base import Setting
 from icprl_lightning.data.store import (
     StoredDataset,
     check_replaceable_dataset,
@@ -77,8 +80,9 @@ from icprl_lightning.data.store import (
     write_dataset,
 )
 from icprl_lightning.data.suites import BanditSuite, EvalSuite
-from icprl_lightning.families.base import Family, TaskFamily
-from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
+from icprl_lightning.data_contract import EVALUATIONS
+from icprl_lightning.families.base import Family
+from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError, check_int
 
 
@@ -119,7 +123,8 @@ class KeptRows(Sampler[int]):
 
 
 def check_folds(setting: Setting, folds: Any, holdout_fold: Any) -> None:
-    """``folds`` >= 1; ``holdout_fold`` in [0, folds), given exactly when folds >= 2; not with BanditDuels."""
+    """``folds`` >= 1; ``holdout_fold`` in [0, folds), given exactly when folds >= 2; only if the setting
+    ``has_folds``."""
     check_int("PreferenceDataModule", "folds", folds, 1)
     if holdout_fold is None:
         if folds > 1:
@@ -131,10 +136,10 @@ def check_folds(setting: Setting, folds: Any, holdout_fold: Any) -> None:
                                   f"one of k >= 2 folds of the training tasks), got holdout_fold={holdout_fold!r} "
                                   f"with folds={folds}")
     check_int("PreferenceDataModule", "holdout_fold", holdout_fold, 0, folds - 1)
-    if isinstance(setting, BanditDuels):
-        raise HyperparameterError("PreferenceDataModule: holdout_fold must be None with BanditDuels (its val "
-                                  "split holds other problems than the training ones, so there is no fold of "
-                                  f"training tasks to leave out of both), got {holdout_fold}")
+    if not setting.has_folds:
+        raise HyperparameterError(f"PreferenceDataModule: holdout_fold must be None with {type(setting).__name__} "
+                                  "(its val split holds other tasks than the training ones, so there is no fold "
+                                  f"of training tasks to leave out of both), got {holdout_fold}")
 
 
 class PreferenceDataModule(L.LightningDataModule):
@@ -145,7 +150,7 @@ class PreferenceDataModule(L.LightningDataModule):
         setting: the data recipe.
         data_dir: the dataset directory; by default one named by the config under ``root_dir``.
         batch_size: contexts per batch.
-        pairs: serve another context of the same task as ``pair_*`` (ICPO's loss pairs, RewardGen).
+        pairs: serve another context of the same task as the samples' ``pair`` (ICPO's loss pairs, RewardGen).
         query_labels: serve query states and their optimal actions (DPT, DP²T).
         overwrite: regenerate even when the dataset exists.
         verify_checksums: check every file's SHA-256 when loading.
@@ -165,25 +170,21 @@ class PreferenceDataModule(L.LightningDataModule):
         if not isinstance(setting, Setting):
             raise HyperparameterError(f"PreferenceDataModule: setting must be a Setting (data/settings/), got "
                                       f"{type(setting).__name__}")
-        family_needed = LinearDuelingBanditFamily if isinstance(setting, BanditDuels) else (
-            TaskFamily if isinstance(setting, MDPSetting) else Family)
-        if not isinstance(family, family_needed):
+        if not isinstance(family, setting.family_type):
             raise HyperparameterError(
-                f"PreferenceDataModule: family must be a {family_needed.__name__} for setting "
+                f"PreferenceDataModule: family must be a {setting.family_type.__name__} for setting "
                 f"{type(setting).__name__}, got {type(family).__name__} (dueling bandits take the BanditDuels "
                 "setting; MDP families take StepPreferences, TrajectoryPairs, RewardContexts or RewardTrajectories)")
         check_int("PreferenceDataModule", "batch_size", batch_size, 1)
         if pairs:
-            keys = (("contexts_per_problem", "val_contexts_per_problem") if isinstance(setting, BanditDuels)
-                    else ("trajectories_per_task", "val_trajectories_per_task"))
-            for key, n in zip(keys, setting.per_task, strict=True):
+            for key, n in zip(setting.per_task_keys, setting.per_task, strict=True):
                 if n < 2:
                     raise HyperparameterError(
                         f"PreferenceDataModule: pairs=True serves another context of the same task, so "
                         f"{type(setting).__name__}'s {key} must be >= 2, got {n}")
-        if query_labels and isinstance(setting, BanditDuels):
-            raise HyperparameterError("PreferenceDataModule: query_labels must be false with BanditDuels (a bandit "
-                                      "has no query states nor optimal-action labels), got True")
+        if query_labels and not setting.has_query_labels:
+            raise HyperparameterError(f"PreferenceDataModule: query_labels must be false with {type(setting).__name__} "
+                                      "(its data has no query states nor optimal-action labels), got True")
         check_folds(setting, folds, holdout_fold)
         super().__init__()
         self.family = family
@@ -199,14 +200,8 @@ class PreferenceDataModule(L.LightningDataModule):
         self.folds = folds
         self.holdout_fold = holdout_fold
         self.dataset: StoredDataset | None = None
-        # what the callbacks may read (validation.data_offers): rollouts (MDP settings), weak regret
-        # (bandits), held-out pairs (T-PRL pairs)
-        offers = {"evaluation_suites": isinstance(setting, MDPSetting),
-                  "bandit_suites": hasattr(setting, "bandit_suites"),
-                  "heldout_pairs": hasattr(setting, "heldout_pairs") and setting.kind == "trajectory_preference"}
-        self.offers = frozenset(k for k, v in offers.items() if v)
 
-    # ---- what the CLI links into the model and the callbacks read ----------------------------------
+    # ---- the data contract (data_contract.PreferenceData): what the CLI, methods and callbacks read ------
     @property
     def context_kind(self) -> str:
         return self.setting.kind
@@ -227,6 +222,11 @@ class PreferenceDataModule(L.LightningDataModule):
     @property
     def metric_env(self) -> str:
         return self.family.metric_env
+
+    @property
+    def offers(self) -> frozenset[str]:
+        """The held-out evaluations the setting declares (``Setting.evaluations``)."""
+        return frozenset(self.setting.evaluations)
 
     @property
     def trajectories_per_task(self) -> tuple[int, int]:
@@ -279,6 +279,12 @@ class PreferenceDataModule(L.LightningDataModule):
     def batch_fields(self) -> tuple[str, ...]:
         """The fields a training batch is made of (as ``RecordedPreferenceDataModule.batch_fields``)."""
         return tuple(self.required_fields()["train"])
+
+    def train_arrays(self) -> dict[str, np.ndarray]:
+        """The training split's arrays of ``batch_fields()`` only (memory-mapped): a method's input statistics
+        are fitted on these, so a preference method never sees the scale of a stored reward it is not served."""
+        train = self.load()["train"]
+        return {k: train[k] for k in self.batch_fields()}
 
     def _read(self, verify: bool) -> StoredDataset:
         return load_dataset(self.path, self.generator_config(), verify=verify, regenerate_hint=self.regenerate_hint)
@@ -333,7 +339,8 @@ class PreferenceDataModule(L.LightningDataModule):
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
         per_task = self.trajectories_per_task[0 if split == "train" else 1]
         data = ContextBatches(self.load()[split], self.setting.batch_fields(), per_task, self.pairs,
-                              self.query_labels, self.setting.pair_fields, tasks=isinstance(self.setting, MDPSetting))
+                              self.query_labels, self.setting.pair_fields, tasks=self.setting.has_folds,
+                              kind=self.context_kind)
         rows = self.kept_rows(split)
         sampler = self._row_sampler(data if rows is None else rows, shuffle)
         if rows is not None:
@@ -361,19 +368,25 @@ class PreferenceDataModule(L.LightningDataModule):
     def val_dataloader(self) -> DataLoader:
         return self._loader("val", shuffle=False)
 
-    # ---- evaluation ----------------------------------------------------------------------------------
+    # ---- evaluation (what the setting declares in ``evaluations``) --------------------------------------
     def evaluation_suites(self) -> list[EvalSuite]:
-        """The held-out in-context rollouts the rollout callback runs (one per context quality)."""
+        """The held-out in-context rollouts the rollout callback runs (one per context quality); empty when the
+        setting offers none."""
+        if "evaluation_suites" not in self.offers:
+            return []
         return self.setting.evaluation_suites(self.family, self.load())
 
     def bandit_suites(self) -> list[BanditSuite]:
-        """The held-out weak-regret evaluations (dueling bandits only)."""
-        if not hasattr(self.setting, "bandit_suites"):
-            raise ValueError(f"{type(self.setting).__name__} data has no bandit evaluation; use a BanditDuels setting")
+        """The held-out weak-regret evaluations (dueling bandits)."""
+        self._require("bandit_suites")
         return self.setting.bandit_suites(self.family, self.load())
 
-    def heldout_pairs(self) -> dict[str, dict[str, torch.Tensor]]:
+    def heldout_pairs(self) -> dict[str, ContextSamples]:
         """Held-out T-PRL pairs per quality, each with another pair of its task (RewardGen's accuracy)."""
-        if not hasattr(self.setting, "heldout_pairs"):
-            raise ValueError("held-out pairs exist in trajectory_preference datasets only")
+        self._require("heldout_pairs")
         return self.setting.heldout_pairs(self.load())
+
+    def _require(self, evaluation: str) -> None:
+        if evaluation not in self.offers:
+            raise ValueError(f"{type(self.setting).__name__} data offers no {evaluation} (it offers "
+                             f"{sorted(self.offers)}); {evaluation} needs {EVALUATIONS[evaluation]}")

@@ -9,7 +9,7 @@ the state size, the action spec and the context length. This DataModule exposes 
 ``state_dim``, ``action_spec`` and ``context_length``, so the CLI links the model's sizes from the data.
 Batches are whole-batch fancy indices of the memory-mapped arrays (``ContextBatches``):
 
-* ``pairs=True`` adds the comparisons of *another* row of the same task as ``pair_*`` fields (ICPO's
+* ``pairs=True`` adds the comparisons of *another* row of the same task as the samples' ``pair`` (ICPO's
   default ``pair_source: other_trajectory``, RewardGen's ``other_pair``). Recorded tasks may hold any
   number of rows, so the other row is drawn among that task's rows; every task needs at least two.
 * ``query_labels=True`` serves ``query_states`` / ``optimal_actions`` (DPT/DP²T), if they were imported.
@@ -20,8 +20,12 @@ declares (``data/schema.py``: dtypes, row and step counts, sizes, labels, action
 within ``|x| <= 1e6``), one ``DatasetError`` naming the split and field before training starts. With
 ``verify_checksums`` the files' SHA-256 are checked in ``setup``.
 
-There is no simulator behind recorded data, so ``evaluation_suites()`` is empty: validation reports the
-methods' losses on the held-out tasks of the ``val`` split, and deployment is through ``load_agent``.
+There is no simulator behind recorded data, so it ``offers`` no held-out evaluation and
+``evaluation_suites()`` is empty: validation reports the methods' losses on the held-out tasks of the ``val``
+split, and deployment is through ``load_agent``. What it serves is the data contract
+(``data_contract.PreferenceData``), as the generated data's DataModule: the pairing check (``icprl fit``, and
+``InContextModule.on_fit_start`` for a fit without the CLI) compares the model's context kind with this data's,
+so the DataModule never reads the model.
 """
 
 from __future__ import annotations
@@ -35,13 +39,15 @@ import torch
 from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
 
 from icprl_lightning.contexts import ActionSpec
-from icprl_lightning.data.batches import ContextBatches, to_tensor
+from icprl_lightning.data.batches import ContextBatches
 from icprl_lightning.data.importer import FORMAT, KINDS, QUERY_FIELDS, TASK_FIELD
 from icprl_lightning.data.schema import DatasetSchema, check_dataset
 from icprl_lightning.data.store import DatasetError, StoredDataset, load_dataset
+from icprl_lightning.data_contract import EVALUATIONS
+from icprl_lightning.samples import ContextSamples
 
-if TYPE_CHECKING:  # a type only: recorded data never builds a suite, so it needs no evaluation code
-    from icprl_lightning.data.suites import EvalSuite
+if TYPE_CHECKING:  # types only: recorded data never builds a suite, so it needs no evaluation code
+    from icprl_lightning.data.suites import BanditSuite, EvalSuite
 
 SPLITS = ("train", "val")
 # the manifest config keys this DataModule reads, with their JSON types (bool is not an int here)
@@ -51,14 +57,15 @@ MINIMUM = {"action_size": 1, "state_dim": 0, "context_length": 1}
 
 
 class RecordedBatches(Dataset):
-    """``ContextBatches`` of one split, plus ``pair_*`` fields from another row of each row's task.
+    """``ContextBatches`` of one split, plus another row of each row's task as the samples' ``pair``.
 
     ``task_index`` must be sorted (task-major, as the importer writes it); tasks may differ in size.
     """
 
-    def __init__(self, arrays: dict[str, np.ndarray], fields: tuple[str, ...], pairs: bool,
+    def __init__(self, arrays: dict[str, np.ndarray], kind: str, fields: tuple[str, ...], pairs: bool,
                  query_labels: bool, split: str) -> None:
-        self.rows = ContextBatches(arrays, fields, trajectories_per_task=1, pairs=False, query_labels=query_labels)
+        self.rows = ContextBatches(arrays, fields, trajectories_per_task=1, pairs=False, query_labels=query_labels,
+                                   kind=kind)
         self.arrays = arrays
         self.fields = fields
         self.pairs = pairs
@@ -81,15 +88,14 @@ class RecordedBatches(Dataset):
     def __len__(self) -> int:
         return len(self.rows)
 
-    def __getitem__(self, index: list[int]) -> dict[str, torch.Tensor]:
+    def __getitem__(self, index: list[int]) -> ContextSamples:
         batch = self.rows[index]
         if self.pairs:
             idx = np.sort(np.asarray(index))  # the order ContextBatches serves the rows in
             count = self.count[idx]
             shift = 1 + (torch.rand(len(idx)).numpy() * (count - 1)).astype(np.int64)  # uniform in [1, count)
             other = self.start[idx] + (idx - self.start[idx] + shift) % count
-            for k in self.fields:
-                batch[f"pair_{k}"] = to_tensor(self.arrays[k][other])
+            batch = batch._replace(pair=self.rows.context(other))
         return batch
 
 
@@ -99,12 +105,13 @@ class RecordedPreferenceDataModule(L.LightningDataModule):
     Args:
         data_dir: the dataset directory (``icprl import ... --out DIR``).
         batch_size: contexts per batch.
-        pairs: also serve another row of the same task as ``pair_*`` (ICPO, RewardGen, ICRG).
+        pairs: also serve another row of the same task as the samples' ``pair`` (ICPO, RewardGen, ICRG).
         query_labels: also serve ``query_states`` / ``optimal_actions`` (DPT, DP²T).
         verify_checksums: check every file's SHA-256 against the manifest in ``setup``.
     """
 
     metric_env = "recorded"
+    offers: frozenset[str] = frozenset()  # no simulator behind the data: no held-out evaluation
 
     def __init__(self, data_dir: str, batch_size: int = 32, pairs: bool = False, query_labels: bool = False,
                  verify_checksums: bool = True) -> None:
@@ -181,19 +188,27 @@ class RecordedPreferenceDataModule(L.LightningDataModule):
     def batch_fields(self) -> tuple[str, ...]:
         return tuple(KINDS[self.context_kind])
 
+    def train_arrays(self) -> dict[str, np.ndarray]:
+        """The training split's arrays of ``batch_fields()`` only (memory-mapped): what a method fits its input
+        statistics on."""
+        return {k: self.dataset["train"][k] for k in self.batch_fields()}
+
     def evaluation_suites(self) -> list[EvalSuite]:
         """No simulator behind recorded data: nothing to roll out."""
         return []
 
+    def bandit_suites(self) -> list[BanditSuite]:
+        raise ValueError(f"recorded data offers no bandit_suites; it needs {EVALUATIONS['bandit_suites']}")
+
+    def heldout_pairs(self) -> dict[str, ContextSamples]:
+        raise ValueError("recorded data offers no heldout_pairs (no held-out evaluation splits); it needs "
+                         f"{EVALUATIONS['heldout_pairs']}")
+
     def _make_batches(self, split: str) -> RecordedBatches:
-        return RecordedBatches(self.dataset[split], self.batch_fields(), self.pairs, self.query_labels, split)
+        return RecordedBatches(self.dataset[split], self.context_kind, self.batch_fields(), self.pairs,
+                               self.query_labels, split)
 
     def setup(self, stage: str | None = None) -> None:
-        model = self.trainer.lightning_module if self.trainer is not None else None
-        kind = getattr(model, "context_kind", None)  # the policy's; ICRG's (reward_trajectory) is not its data's
-        if kind in KINDS and kind != self.context_kind:
-            raise ValueError(f"the model conditions on {kind} contexts but {self.path} holds {self.context_kind} "
-                             "data; pick a method (or model.init_args.context_kind) for that kind")
         if not self._verified:  # re-open with every checksum checked, once
             dataset = load_dataset(self.path, verify=True, regenerate_hint=self.hint)
             if dataset.manifest != self.dataset.manifest:  # replaced since __init__ checked it: refuse

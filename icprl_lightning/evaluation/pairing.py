@@ -8,7 +8,8 @@ checkpoint evaluated with another config skips both, and would fail late (a shap
 rollout) or, worse, run on data it was never trained for. ``run_datamodule`` builds the config's
 DataModule (nothing generated), reads every checkpoint as untrusted (``checkpoints.load_module``) and
 compares the two, so a bandit checkpoint with an MDP config (or the reverse), a RewardGen reward model,
-or a model of another size is one ``ValueError`` naming the run, the checkpoint and the config.
+or a model of another size is one ``ValueError`` naming the run, the checkpoint and the config. The data side is
+read through the data contract (``data_contract.PreferenceData``): its sizes and the evaluations it ``offers``.
 """
 
 from __future__ import annotations
@@ -20,13 +21,14 @@ import yaml
 
 from icprl_lightning.checkpoints import load_module
 from icprl_lightning.data.config import datamodule_from_config
-from icprl_lightning.validation import consumed_kinds, data_offers
+from icprl_lightning.data_contract import PreferenceData, missing_members
+from icprl_lightning.validation import consumed_kinds
 
 
-def is_bandit_data(datamodule: Any) -> bool:
+def is_bandit_data(datamodule: PreferenceData) -> bool:
     """Dueling-bandit data (weak regret, ``bandit_suites``) rather than an MDP family's (rollouts); known from the
-    DataModule's arguments alone, before its data exists."""
-    return data_offers(datamodule, "bandit_suites")
+    evaluations the DataModule declares, before its data exists."""
+    return "bandit_suites" in datamodule.offers
 
 
 def _sizes(kind: str, state_dim: int, discrete: bool, actions: int, length: int) -> str:
@@ -34,7 +36,7 @@ def _sizes(kind: str, state_dim: int, discrete: bool, actions: int, length: int)
             f"context length {length}")
 
 
-def fit_errors(module: Any, datamodule: Any) -> list[str]:
+def fit_errors(module: Any, datamodule: PreferenceData) -> list[str]:
     """Every way ``module`` (a loaded checkpoint) cannot deploy on ``datamodule``'s held-out tasks, each a phrase
     after the module's class name (empty: it fits)."""
     if getattr(module, "policy", None) is None:  # RewardGen: a reward model, deployed only inside ICRG
@@ -60,15 +62,18 @@ def _config_error(error: BaseException) -> str:
     return " ".join(line.strip() for line in str(error).splitlines() if line.strip())[:300]
 
 
-def run_datamodule(name: str, config: str, checkpoints: list[str]) -> Any:
+def run_datamodule(name: str, config: str, checkpoints: list[str]) -> PreferenceData:
     """``config``'s DataModule (no data generated yet) after checking every checkpoint of run ``name`` fits it;
     else one ``ValueError`` naming the run, the file and what does not fit."""
     try:
         datamodule = datamodule_from_config(config)
     except (OSError, ValueError, yaml.YAMLError, argparse.ArgumentError) as e:
         raise ValueError(f"--run {name}: config {config} does not give a DataModule ({_config_error(e)})") from None
-    family = getattr(getattr(datamodule, "family", None), "name", type(datamodule).__name__)
-    data = (f"{'dueling-bandit' if is_bandit_data(datamodule) else 'MDP'} data ({family}: "
+    if not isinstance(datamodule, PreferenceData):
+        raise ValueError(f"--run {name}: config {config} gives {type(datamodule).__name__}, which does not implement "
+                         f"the data contract (icprl_lightning.data_contract.PreferenceData): it lacks "
+                         f"{missing_members(datamodule)}")
+    data = (f"{'dueling-bandit' if is_bandit_data(datamodule) else 'MDP'} data ({datamodule.metric_env}: "
             + _sizes(datamodule.context_kind, datamodule.state_dim, datamodule.action_spec.discrete,
                      datamodule.action_spec.size, datamodule.context_length) + ")")
     for checkpoint in checkpoints:

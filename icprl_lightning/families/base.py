@@ -172,7 +172,11 @@ class TaskFamily(Family):
     def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
         """Mixing level per named target share of the optimal return: ``{name: {"mixing": p, ...}}``.
 
-        Default: ``calibration.calibrate_by_simulation`` (normalized return between uniform and optimal).
+        ``calibration.calibrate_by_simulation`` (normalized return between uniform and optimal, by simulation with
+        common random numbers): the path for a new family, which needs nothing but its oracle for it. Each
+        built-in family overrides it as an exception whose docstring gives its reason (DarkRoom's exact
+        closed-form optimum, Reach's cheaper grid, the SAC recipe's checkpoints), tested to agree with this
+        simulation within its noise.
         """
         from icprl_lightning.families.calibration import calibrate_by_simulation
 
@@ -182,7 +186,9 @@ class TaskFamily(Family):
                    rng: np.random.Generator) -> dict[str, Any]:
         """Held-out references: ``{"test_reference": {quality: {behavior_return, optimal_return, ...}}}``.
 
-        Default: ``calibration.references_by_simulation`` (also per-task uniform and optimal returns).
+        ``calibration.references_by_simulation`` (also per-task uniform and optimal returns, which ``normalizer``
+        reads): the path for a new family. The built-in families' overrides are exceptions with their reasons
+        in their docstrings, as for ``calibrate``.
         """
         from icprl_lightning.families.calibration import references_by_simulation
 

@@ -1,4 +1,4 @@
-"""Cross-fitted ICRG labels (issue 17, point 2): fold-held-out data, the fold record, fold-model labels.
+"""Cross-fitted ICRG labels: fold-held-out data, the fold record, fold-model labels.
 
 ``PreferenceDataModule(folds=k, holdout_fold=i)`` leaves the training tasks t with t % k == i out of the train
 and val loaders; ``ICRGModule(cross_fit_checkpoints=[...])`` labels each row of task t with the RewardGen
@@ -18,15 +18,15 @@ from factories import bandit_data, darkroom_data
 
 from icprl_lightning import load_agent
 from icprl_lightning.checkpoints import SEAL_KEY, load_module, seal
-from icprl_lightning.contexts import context_from_batch
 from icprl_lightning.methods.icrg import ICRGAgent, ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.validation import HyperparameterError
 
 # 4 training tasks × 3 train (2 val) pairs: fold 0 = tasks {0, 2} = train rows {0, 1, 2, 6, 7, 8}
 TINY = dict(n_train_tasks=4, n_test_tasks=2, trajectories_per_task=3, val_trajectories_per_task=2,
             eval_contexts_per_task=1, calibration_episodes=2, reference_episodes=2, progress=False, pairs=True)
-SIZES = dict(n_layer=1, n_embd=16, n_head=2)
+SIZES = dict(backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100)
 
 
@@ -55,16 +55,16 @@ def test_holdout_fold_serves_exactly_the_other_folds_tasks_once(full):
     assert dm.path == full.path and dm.generator_config() == full.generator_config()  # same dataset on disk
     train = dm.train_dataloader()
     assert sorted(rows_drawn(train)) == [0, 1, 2, 6, 7, 8]  # tasks 0 and 2, each row once
-    tasks = torch.cat([b["task"] for b in train])
+    tasks = torch.cat([b.task for b in train])
     assert sorted(tasks.tolist()) == [0, 0, 0, 2, 2, 2]
     assert sorted(rows_drawn(dm.val_dataloader())) == [0, 1, 4, 5]  # val: 2 pairs per task
-    assert sorted(torch.cat([b["task"] for b in dm.val_dataloader()]).tolist()) == [0, 0, 2, 2]
+    assert sorted(torch.cat([b.task for b in dm.val_dataloader()]).tolist()) == [0, 0, 2, 2]
     other = data(full.root_dir, folds=2, holdout_fold=0)
     assert sorted(rows_drawn(other.train_dataloader())) == [3, 4, 5, 9, 10, 11]
     # the pair partner stays within the row's task, which is kept whole
     batch = next(iter(train))
     states = np.asarray(dm.load()["train"]["states_a"])
-    for pair, task in zip(batch["pair_states_a"].numpy(), batch["task"].tolist(), strict=True):
+    for pair, task in zip(batch.pair.states_a.numpy(), batch.task.tolist(), strict=True):
         row = int(np.flatnonzero((states == pair).all(axis=(1, 2)))[0])
         assert row // 3 == task
 
@@ -72,7 +72,7 @@ def test_holdout_fold_serves_exactly_the_other_folds_tasks_once(full):
 def test_without_holdout_every_row_is_served_with_its_task(full):
     assert sorted(rows_drawn(full.train_dataloader())) == list(range(12))
     batch = full.train_dataloader().dataset[[0, 4, 7, 11]]
-    assert batch["task"].dtype == torch.int64 and batch["task"].tolist() == [0, 1, 2, 3]
+    assert batch.task.dtype == torch.int64 and batch.task.tolist() == [0, 1, 2, 3]
     assert full.kept_rows("train") is None
 
 
@@ -173,10 +173,9 @@ def test_each_row_is_labeled_by_the_model_that_held_out_its_task(full, reward_ge
     batch = full.train_dataloader().dataset[list(range(12))]  # every task; pair partners drawn once, here
     a, b = model.labeled_trajectories(batch)
     got = torch.cat([a.rewards, b.rewards], 1)
-    pair = context_from_batch("trajectory_preference", batch)
-    context = context_from_batch("trajectory_preference", batch, prefix="pair_")
+    pair, context = batch.context, batch.pair
     for i in range(2):
-        mine = torch.nonzero(batch["task"] % 2 == i).squeeze(1)
+        mine = torch.nonzero(batch.task % 2 == i).squeeze(1)
         assert mine.tolist() == [r for r in range(12) if (r // 3) % 2 == i]
         torch.testing.assert_close(got[mine], _labels(model.cross_fit[i], context, pair, mine))
         other = _labels(model.cross_fit[1 - i], context, pair, mine)
@@ -186,8 +185,8 @@ def test_each_row_is_labeled_by_the_model_that_held_out_its_task(full, reward_ge
     a, b = in_sample.labeled_trajectories(batch)  # without cross-fitting: R_ψ labels every row, as before
     torch.testing.assert_close(torch.cat([a.rewards, b.rewards], 1),
                                _labels(in_sample.reward_gen, context, pair, torch.arange(12)))
-    with pytest.raises(KeyError, match="batches need 'task'"):
-        model.labeled_trajectories({k: v for k, v in batch.items() if k != "task"})
+    with pytest.raises(ValueError, match="samples need task, the training-task index, which this data does not"):
+        model.labeled_trajectories(batch._replace(task=None))
 
 
 # ---- (d) a cross-fitted ICRG checkpoint deploys without the RewardGen files ---------------------------
@@ -257,13 +256,10 @@ def test_mismatched_fold_checkpoints_are_refused(reward_gens, tmp_path):
         ICRGModule(**ENV, **SIZES, reward_gen_checkpoint=main, cross_fit_hparams=[{"n_layer": 1}])
 
 
-# ---- scripts/icrg_label_quality.py: the labels ICRG trains on and deploys with, against the latent reward ----------
+# ---- icprl analyze icrg-labels: the labels ICRG trains on and deploys with, against the latent reward ----------------
 
 def test_label_quality_scores_the_labels_each_icrg_trains_on(full, reward_gens, tmp_path):
-    import sys
-
-    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "scripts"))
-    import icrg_label_quality
+    from icprl_lightning.evaluation import icrg_labels
 
     rewards = darkroom_data("reward_trajectory", root_dir=full.root_dir, **{k: v for k, v in TINY.items()
                                                                             if k != "pairs"})
@@ -274,16 +270,16 @@ def test_label_quality_scores_the_labels_each_icrg_trains_on(full, reward_gens, 
         torch.manual_seed(0)
         model = ICRGModule(**ENV, **SIZES, value_epochs=0, reward_gen_checkpoint=str(reward_gens["main"]), **extra)
         checkpoints[name] = _fit_save(model, full, tmp_path / f"{name}.ckpt")
-    scores = {name: icrg_label_quality.training_labels(load_module(path).eval(), full, rewards, rows=12, seed=0)
+    scores = {name: icrg_labels.training_labels(load_module(path).eval(), full, rewards, rows=12, seed=0)
               for name, path in checkpoints.items()}
     assert all(-1 <= s <= 1 for s in scores.values())
     assert scores["in-sample"] != pytest.approx(scores["cross-fitted"])  # other labelers on the same rows
     # the deployment labels are the agent's, which both ICRGs share (the main R_ψ)
-    deployed = {name: icrg_label_quality.deployment_labels(path, full, rewards) for name, path in checkpoints.items()}
+    deployed = {name: icrg_labels.deployment_labels(path, full, rewards) for name, path in checkpoints.items()}
     assert deployed["in-sample"] == pytest.approx(deployed["cross-fitted"])
     assert set(deployed["in-sample"]) == {"low", "medium", "high"}
     other = darkroom_data("reward_trajectory", root_dir=str(tmp_path / "other"), **{
         **{k: v for k, v in TINY.items() if k != "pairs"}, "seed": 1})
     other.prepare_data()
     with pytest.raises(ValueError, match="different training trajectories"):
-        icrg_label_quality.training_labels(load_module(checkpoints["in-sample"]).eval(), full, other, rows=12, seed=0)
+        icrg_labels.training_labels(load_module(checkpoints["in-sample"]).eval(), full, other, rows=12, seed=0)

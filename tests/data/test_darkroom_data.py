@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from factories import darkroom_data, step_contexts  # noqa: E402
+from factories import darkroom_data, served_fields, step_contexts  # noqa: E402
 
 from icprl_lightning.data.store import DatasetError
 from icprl_lightning.families.darkroom import DarkRoomFamily
@@ -65,9 +65,10 @@ def test_manifest_records_calibration_agreement_and_references(tiny_ipref):
 def test_preference_batches_carry_no_reward_goal_or_advantage(tiny_ipref):
     """The reward-free invariant: an I-PRL batch holds comparisons, states and (for DP²T) action labels only."""
     batch = next(iter(tiny_ipref.train_dataloader()))
-    assert set(batch) == {"states", "actions", "alt_actions", "preferred", "query_states", "optimal_actions",
-                          "pair_states", "pair_actions", "pair_alt_actions", "pair_preferred", "task"}
-    for key in batch:
+    served = served_fields(batch)
+    assert served == {"context.states", "context.actions", "context.alt_actions", "context.preferred", "query_states",
+                      "optimal_actions", "pair.states", "pair.actions", "pair.alt_actions", "pair.preferred", "task"}
+    for key in served:
         assert not any(word in key for word in FORBIDDEN), key
     for suite in tiny_ipref.evaluation_suites():
         assert not any(any(w in f for w in FORBIDDEN) for f in vars(suite.context)), suite.quality
@@ -76,14 +77,14 @@ def test_preference_batches_carry_no_reward_goal_or_advantage(tiny_ipref):
 def test_icpo_batches_without_labels_have_no_optimal_actions(tiny_ipref, tiny_kwargs):
     dm = darkroom_data(root_dir=tiny_ipref.root_dir, pairs=True, query_labels=False, **tiny_kwargs)
     batch = next(iter(dm.train_dataloader()))
-    assert "optimal_actions" not in batch and "query_states" not in batch
+    assert batch.optimal_actions is None and batch.query_states is None
 
 
 def test_pairs_come_from_another_trajectory_of_the_same_task(tiny_ipref):
     data = tiny_ipref.load()["train"]
     batch = next(iter(tiny_ipref.train_dataloader()))
     states = np.asarray(data["states"])
-    for ctx, pair in zip(batch["states"].numpy(), batch["pair_states"].numpy(), strict=True):
+    for ctx, pair in zip(batch.context.states.numpy(), batch.pair.states.numpy(), strict=True):
         i = int(np.flatnonzero((states == ctx).all(axis=(1, 2)))[0])
         j = int(np.flatnonzero((states == pair).all(axis=(1, 2)))[0])
         assert i != j and data["task_index"][i] == data["task_index"][j]

@@ -1,4 +1,4 @@
-"""Label-informative I-PRL contexts (issue 15): where the states come from and which action they follow."""
+"""Label-informative I-PRL contexts: where the states come from and which action they follow."""
 
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ import torch
 
 pytest.importorskip("metaworld")
 
-from factories import cli_data_args, config_args, reach_data, reward_contexts, step_contexts  # noqa: E402
+from factories import cli_data_args, config_args, reach_data, reward_contexts, served_fields, step_contexts  # noqa: E402
 
 from icprl_lightning.cli import run_cli  # noqa: E402
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
@@ -135,11 +135,12 @@ def test_same_seed_same_bytes(tmp_path):
 def test_preference_batches_carry_no_reward_goal_or_advantage(ipref):
     ipref.setup("fit")
     batch = next(iter(ipref.train_dataloader()))
-    assert set(batch) == {"states", "actions", "alt_actions", "preferred", "pair_states", "pair_actions",
-                          "pair_alt_actions", "pair_preferred", "task"}
-    assert not [k for k in batch if any(word in k for word in FORBIDDEN)]
-    assert torch.all(batch["states"][..., GOAL_SLICE] == 0) and torch.all(batch["pair_states"][..., GOAL_SLICE] == 0)
-    assert batch["actions"].shape == (4, H, 4) and batch["actions"].dtype == torch.float32
+    served = served_fields(batch)
+    assert served == {"context.states", "context.actions", "context.alt_actions", "context.preferred", "pair.states",
+                      "pair.actions", "pair.alt_actions", "pair.preferred", "task"}
+    assert not [k for k in served if any(word in k for word in FORBIDDEN)]
+    assert torch.all(batch.context.states[..., GOAL_SLICE] == 0) and torch.all(batch.pair.states[..., GOAL_SLICE] == 0)
+    assert batch.context.actions.shape == (4, H, 4) and batch.context.actions.dtype == torch.float32
 
 
 def test_evaluation_suites_report_success_and_normalize_per_goal(ipref):
@@ -187,30 +188,3 @@ def test_icpo_beats_the_low_quality_behavior_policy_on_held_out_goals(tmp_path):
     metrics = {k: float(v) for k, v in cli.trainer.callback_metrics.items()}
     assert metrics["val/metaworld/low/return"] > metrics["val/metaworld/low/behavior_return"], metrics
     assert metrics["val/metaworld/low/normalized_return"] > metrics["val/metaworld/low/behavior_normalized_return"]
-
-
-def test_action_probe_scores_a_constant_action_against_the_goal(family):
-    """scripts/reach_action_probe.py: a policy that always pushes +y (towards every Reach goal from the start)."""
-    import sys
-    from pathlib import Path
-
-    from icprl_lightning.data.suites import EvalSuite
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-    import reach_action_probe
-
-    class PlusY:
-        def reset(self, context) -> None:
-            self.n = len(context)
-
-        def act(self, obs: torch.Tensor) -> torch.Tensor:
-            return torch.tensor([0.0, 1.0, 0.0, 0.0]).expand(len(obs), 4)
-
-    goals = family.test_goals[:2]
-    suite = EvalSuite("reach", "high", [0, 1], lambda: family.make_env(goals), np.arange(2), H)
-    out = reach_action_probe.probe_suite(PlusY(), suite, seed=0)
-    assert out["mean_action"] == [0.0, 1.0, 0.0, 0.0]
-    assert out["saturated"] == pytest.approx(1 / 3)
-    assert 0.0 < out["cos_to_goal"] <= 1.0
-    assert out["final_distance"] < out["start_distance"]
-    assert "cos_to_oracle" not in out

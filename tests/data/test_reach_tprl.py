@@ -16,7 +16,7 @@ import yaml
 
 pytest.importorskip("metaworld")
 
-from factories import cli_data_args, config_args, reach_data, trajectory_pairs  # noqa: E402
+from factories import cli_data_args, config_args, reach_data, served_fields, trajectory_pairs  # noqa: E402
 
 from icprl_lightning import TrajectoryPreferenceContext, load_agent  # noqa: E402
 from icprl_lightning.cli import run_cli  # noqa: E402
@@ -26,6 +26,7 @@ from icprl_lightning.data.settings.trajectory_pairs import label_trajectory_pair
 from icprl_lightning.families.metaworld_reach import ReachTaskFamily  # noqa: E402
 from icprl_lightning.families.metaworld_reach.env import GOAL_SLICE, latent_reward  # noqa: E402
 from icprl_lightning.families.metaworld_reach.oracle import expert_actions  # noqa: E402
+from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.preferences import preference_probability  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
@@ -35,7 +36,7 @@ PAIR = ("states_a", "actions_a", "states_b", "actions_b", "preferred")
 TINY = dict(horizon=H, n_train_tasks=3, n_test_tasks=2, trajectories_per_task=3, val_trajectories_per_task=2,
             eval_contexts_per_task=2, calibration_episodes=2, reference_episodes=2, num_workers=0, progress=False,
             batch_size=4)
-SIZES = dict(n_layer=1, n_embd=16, n_head=2)
+SIZES = dict(backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 # The same tiny dataset for every config (sizes, batch and workers overridden; the paper configs too).
 CLI_TINY = cli_data_args("reach", **TINY)
 CONFIGS = ("reward_gen_metaworld", "icrg_metaworld", "dit_metaworld", "dp2t_metaworld_tprl")
@@ -132,16 +133,20 @@ def test_pairs_replay_in_the_env_and_queries_are_visited_states_with_expert_labe
 def test_preference_batches_and_eval_contexts_are_reward_free(tprl):
     tprl.setup("fit")
     batch = next(iter(tprl.train_dataloader()))
-    assert set(batch) == {*PAIR, *(f"pair_{k}" for k in PAIR), "query_states", "optimal_actions", "task"}
-    assert not [k for k in batch if any(word in k for word in FORBIDDEN)]
-    assert batch["states_a"].shape == (4, H, 39) and batch["actions_b"].dtype == torch.float32
-    assert batch["preferred"].shape == (4,) and set(batch["preferred"].tolist()) <= {0.0, 1.0}
-    for k in ("states_a", "states_b", "pair_states_a", "query_states"):
-        assert torch.all(batch[k][..., GOAL_SLICE] == 0), k
+    served = served_fields(batch)
+    assert served == {*(f"context.{k}" for k in PAIR), *(f"pair.{k}" for k in PAIR), "query_states",
+                      "optimal_actions", "task"}
+    assert not [k for k in served if any(word in k for word in FORBIDDEN)]
+    ctx = batch.context
+    assert ctx.states_a.shape == (4, H, 39) and ctx.actions_b.dtype == torch.float32
+    assert ctx.preferred.shape == (4,) and set(ctx.preferred.tolist()) <= {0.0, 1.0}
+    for k, states in {"states_a": ctx.states_a, "states_b": ctx.states_b, "pair.states_a": batch.pair.states_a,
+                      "query_states": batch.query_states}.items():
+        assert torch.all(states[..., GOAL_SLICE] == 0), k
     stored = [f for f in tprl.load().manifest["files"] if not f.startswith("tasks/")]  # tasks: evaluation only
     assert stored and not any(w in f for f in stored for w in FORBIDDEN)  # nothing on disk either
     without_labels = reach_data("trajectory_preference", root_dir=tprl.root_dir, **TINY)
-    assert set(next(iter(without_labels.val_dataloader()))) == {*PAIR, "task"}
+    assert served_fields(next(iter(without_labels.val_dataloader()))) == {*(f"context.{k}" for k in PAIR), "task"}
     for suite in tprl.evaluation_suites():
         ctx = suite.context
         assert isinstance(ctx, TrajectoryPreferenceContext) and ctx.behavior_states.shape == (4, H, 39)
@@ -188,8 +193,9 @@ def test_reward_kind_holds_the_same_trajectories_with_true_rewards(tprl, tprl_re
             np.testing.assert_array_equal(pref[split][k], rew[split][k])
     assert "preferred" not in rew["train"] and "rewards_a" in rew["train"]
     batch = next(iter(tprl_rewards.train_dataloader()))
-    assert set(batch) == {"states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b", "task"}
-    assert torch.all(batch["rewards_a"] < 0)  # −‖tcp − goal‖
+    assert served_fields(batch) == {f"trajectory_{side}.{k}" for side in "ab" for k in ("states", "actions", "rewards")
+                                    } | {"task"}
+    assert torch.all(batch.trajectory_a.rewards < 0)  # −‖tcp − goal‖
     suite = tprl_rewards.evaluation_suites()[0]
     assert isinstance(suite.context, RewardTrajectoryContext)
     np.testing.assert_array_equal(suite.context.states.numpy(), rew["eval_low"]["behavior_states"])
@@ -201,12 +207,12 @@ def test_other_pairs_and_heldout_pairs_come_from_the_same_task(tprl):
     train = tprl.load()["train"]
     task_of = {s.tobytes(): t for s, t in zip(np.asarray(train["states_b"]), train["task_index"], strict=True)}
     batch = next(iter(tprl.train_dataloader()))
-    for own, other in zip(batch["states_b"].numpy(), batch["pair_states_b"].numpy(), strict=True):
+    for own, other in zip(batch.context.states_b.numpy(), batch.pair.states_b.numpy(), strict=True):
         assert not np.array_equal(own, other) and task_of[own.tobytes()] == task_of[other.tobytes()]
     held = tprl.heldout_pairs()
     assert list(held) == ["low", "medium", "high"]
     split = tprl.load()["eval_high"]
-    np.testing.assert_array_equal(held["high"]["pair_states_b"][0].numpy(), split["states_b"][1])
+    np.testing.assert_array_equal(held["high"].pair.states_b[0].numpy(), split["states_b"][1])
     assert split["task_index"][0] == split["task_index"][1]
 
 
@@ -214,7 +220,7 @@ def test_other_pairs_and_heldout_pairs_come_from_the_same_task(tprl):
 
 def _fast_dev_run(config: str, root: str, tmp_path, *extra: str, tiny_model: bool = True):
     """Run from ``tmp_path``: the configs' checkpoint directories are relative (runs/<name>/checkpoints)."""
-    sizes = [f"--model.init_args.{k}={v}" for k, v in SIZES.items()] if tiny_model else []
+    sizes = [f"--model.init_args.backbone={SIZES['backbone'].as_dict()}"] if tiny_model else []
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(tmp_path)
         return run_cli(["fit", *config_args(REPO / config), "--trainer.fast_dev_run", "1", "--trainer.logger",
@@ -254,28 +260,6 @@ def test_config_runs_under_fast_dev_run(config, root, tmp_path):
     assert "val/metaworld/high/success" in metrics and "val/metaworld/high/behavior_return" in metrics
 
 
-@pytest.mark.slow  # a fit and rollouts on both contexts
-def test_dit_train_goal_check_deploys_on_training_goals_with_own_and_other_contexts(root, tmp_path):
-    """scripts/dit_train_goal_check.py: the training goals' validation contexts, normalized per training goal."""
-    import sys
-
-    sys.path.insert(0, str(REPO / "scripts"))
-    import dit_train_goal_check
-
-    cli = _fast_dev_run("configs/dit_metaworld.yaml", root, tmp_path)
-    path = tmp_path / "dit.ckpt"
-    cli.trainer.save_checkpoint(path)
-    suite = dit_train_goal_check.training_goal_suite(cli.datamodule, reference_episodes=2, seed=0)
-    tasks = np.asarray(cli.datamodule.load()["val"]["task_index"])
-    assert suite.task_index.tolist() == tasks.tolist() and len(tasks) == 3 * TINY["val_trajectories_per_task"]
-    assert suite.context.rewards.shape == (len(tasks), H)
-    out = dit_train_goal_check.evaluate(suite, [str(path), str(path)], seeds=[0], greedy=True)
-    assert set(out) == {"own", "other_task"}
-    for row in out.values():
-        assert row["training_seeds"] == 2 and np.isfinite(row["normalized_return"])
-        assert row["per_seed"]["return"][0] == pytest.approx(row["per_seed"]["return"][1])  # same checkpoint twice
-
-
 def test_icrg_config_runs_and_its_checkpoint_deploys(root, reward_gen_ckpt, tmp_path):
     cli = _fast_dev_run("configs/icrg_metaworld.yaml", root, tmp_path,
                         f"--model.init_args.reward_gen_checkpoint={reward_gen_ckpt}")
@@ -294,7 +278,7 @@ def test_paper_configs_have_the_paper_architecture_and_data():
         stem = name if name.endswith("_tprl") else f"{name}_tprl"
         cfg = yaml.safe_load((REPO / f"configs/paper/{stem}.yaml").read_text())
         args = cfg["model"]["init_args"]
-        assert (args["n_layer"], args["n_embd"], args["n_head"]) == (8, 256, 8), name
+        assert args["backbone"] == {"n_layer": 8, "n_embd": 256, "n_head": 8}, name
         assert cfg["data"]["init_args"]["setting"]["init_args"]["trajectories_per_task"] == 5000
         assert args["lr"] == 3e-4
 

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from factories import TINY_MODEL
 
 from icprl_lightning import StepPreferenceContext, TrajectoryPreferenceContext, load_agent
 from icprl_lightning.cli import main, run_cli
@@ -193,10 +194,10 @@ def test_pairs_come_from_another_row_of_the_same_task(tmp_path):
     key = {train["states"][i].tobytes(): i for i in range(len(train["states"]))}
     torch.manual_seed(0)
     for batch in dm.train_dataloader():
-        for own, pair in zip(batch["states"].numpy(), batch["pair_states"].numpy(), strict=True):
+        for own, pair in zip(batch.context.states.numpy(), batch.pair.states.numpy(), strict=True):
             i, j = key[own.tobytes()], key[pair.tobytes()]
             assert i != j and train["task_index"][i] == train["task_index"][j]
-        assert batch["preferred"].dtype == torch.float32 and batch["actions"].dtype == torch.int64
+        assert batch.context.preferred.dtype == torch.float32 and batch.context.actions.dtype == torch.int64
 
 
 def test_datamodule_errors_name_the_fix(tmp_path):
@@ -235,7 +236,7 @@ def test_import_fit_icpo_and_deploy(tmp_path, capsys):
     main(["fit", "--config", str(REPO / "configs/recorded_icpo.yaml"), "--data.init_args.data_dir", str(data),
           "--data.init_args.batch_size", "8", "--trainer.max_steps", "4", "--trainer.logger", "false",
           "--trainer.default_root_dir", str(runs), "--trainer.enable_progress_bar", "false",
-          "--model.init_args.n_layer", "1", "--model.init_args.n_embd", "16", "--model.init_args.n_head", "2"])
+          "--model.init_args.backbone", "{n_layer: 1, n_embd: 16, n_head: 2}"])
     agent = load_agent(next(runs.glob("*/checkpoints/last.ckpt")))
     val = RecordedPreferenceDataModule(str(data)).dataset["val"]
     context = StepPreferenceContext(torch.from_numpy(np.array(val["states"])),
@@ -277,23 +278,19 @@ def test_trajectory_preference_round_trip_and_dp2t(tmp_path):
     for k, v in arrays.items():
         np.testing.assert_allclose(train[k], v[train["source_row"]].astype(train[k].dtype))
     batch = next(iter(dm.val_dataloader()))
-    assert set(batch) >= {"states_a", "actions_a", "states_b", "actions_b", "preferred", "query_states",
-                          "optimal_actions", "pair_states_a", "pair_preferred"}
-    context = TrajectoryPreferenceContext(*(batch[k] for k in ("states_a", "actions_a", "states_b", "actions_b",
-                                                               "preferred")))
-    context.validate(dm.state_dim, dm.action_spec)
+    assert batch.query_states.shape[1:] == (6, 3) and batch.optimal_actions.shape[1:] == (6, 2)
+    for context in (batch.context, batch.pair):
+        assert isinstance(context, TrajectoryPreferenceContext)
+        context.validate(dm.state_dim, dm.action_spec)
     data_args = ["--data", "icprl_lightning.data.recorded.RecordedPreferenceDataModule",
                  "--data.init_args.data_dir", str(tmp_path / "ds"), "--data.init_args.query_labels", "true",
                  "--trainer.fast_dev_run", "1", "--trainer.logger", "false", "--trainer.default_root_dir",
                  str(tmp_path), "--trainer.enable_progress_bar", "false"]
     cli = run_cli(["fit", "--model", "icprl_lightning.methods.dpt.DP2TModule",
-                   "--model.init_args.context_kind", "trajectory_preference", "--model.init_args.n_layer", "1",
-                   "--model.init_args.n_embd", "16", "--model.init_args.n_head", "2", *data_args])
+                   "--model.init_args.context_kind", "trajectory_preference", *TINY_MODEL, *data_args])
     assert cli.trainer.state.finished and cli.model.hparams.max_context == 6 and not cli.model.hparams.discrete
-    cli = run_cli(["fit", "--model", "icprl_lightning.methods.reward_gen.RewardGenModule", "--model.init_args.n_layer",
-                   "1", "--model.init_args.n_embd", "16", "--model.init_args.n_head", "2", *data_args,
+    cli = run_cli(["fit", "--model", "icprl_lightning.methods.reward_gen.RewardGenModule", *TINY_MODEL, *data_args,
                    "--data.init_args.pairs", "true"])  # scores another pair of the task, as configured by default
     assert cli.trainer.state.finished
     with pytest.raises(ValueError, match="step_preference contexts but .* holds trajectory_preference"):
-        run_cli(["fit", "--model", "icprl_lightning.methods.dpt.DP2TModule", "--model.init_args.n_layer", "1",
-                 "--model.init_args.n_embd", "16", "--model.init_args.n_head", "2", *data_args])
+        run_cli(["fit", "--model", "icprl_lightning.methods.dpt.DP2TModule", *TINY_MODEL, *data_args])

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 import torch
-from factories import darkroom_data, trajectory_pairs  # noqa: E402
+from factories import darkroom_data, served_fields, trajectory_pairs  # noqa: E402
 
 from icprl_lightning import TrajectoryPreferenceContext
-from icprl_lightning.contexts import ActionSpec, context_from_batch
+from icprl_lightning.contexts import ActionSpec, context_from_fields
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.darkroom.env import step_reward, transition
@@ -71,9 +71,11 @@ def test_batches_and_eval_contexts_carry_no_reward(tprl):
     """The reward-free invariant: T-PRL batches hold states, actions, labels (and DP²T's action labels) only."""
     batch = next(iter(tprl.train_dataloader()))
     pair = ("states_a", "actions_a", "states_b", "actions_b", "preferred")
-    assert set(batch) == {*pair, *(f"pair_{k}" for k in pair), "query_states", "optimal_actions", "task"}
-    assert batch["states_a"].shape == (8, 100, 2) and batch["preferred"].shape == (8,)
-    for key in batch:
+    served = served_fields(batch)
+    assert served == {*(f"context.{k}" for k in pair), *(f"pair.{k}" for k in pair), "query_states",
+                      "optimal_actions", "task"}
+    assert batch.context.states_a.shape == (8, 100, 2) and batch.context.preferred.shape == (8,)
+    for key in served:
         assert not any(word in key for word in FORBIDDEN), key
     assert not any("reward" in f for f in tprl.load().manifest["files"])  # nothing on disk either
     for suite in tprl.evaluation_suites():
@@ -102,7 +104,8 @@ def test_reward_kind_holds_the_same_trajectories_with_true_rewards(tprl, tprl_re
     nxt = transition(s, np.asarray(rew["train"]["actions_a"]).astype(np.int64), 10)
     np.testing.assert_array_equal(rew["train"]["rewards_a"], step_reward(nxt, goals[:, None]))
     batch = next(iter(tprl_rewards.train_dataloader()))
-    assert set(batch) == {"states_a", "actions_a", "rewards_a", "states_b", "actions_b", "rewards_b", "task"}
+    assert served_fields(batch) == {f"trajectory_{side}.{k}" for side in "ab" for k in ("states", "actions", "rewards")
+                                    } | {"task"}
     suite = tprl_rewards.evaluation_suites()[0]
     np.testing.assert_array_equal(suite.context.states.numpy(), rew["eval_low"]["behavior_states"])
 
@@ -111,14 +114,15 @@ def test_other_pairs_and_heldout_pairs_come_from_the_same_task(tprl):
     data = tprl.load()["train"]
     states = np.asarray(data["states_a"])
     batch = next(iter(tprl.train_dataloader()))
-    for ctx, other in zip(batch["states_a"].numpy(), batch["pair_states_a"].numpy(), strict=True):
+    for ctx, other in zip(batch.context.states_a.numpy(), batch.pair.states_a.numpy(), strict=True):
         i = int(np.flatnonzero((states == ctx).all(axis=(1, 2)))[0])
         j = int(np.flatnonzero((states == other).all(axis=(1, 2)))[0])
         assert i != j and data["task_index"][i] == data["task_index"][j]
     held = tprl.heldout_pairs()["medium"]
     split = tprl.load()["eval_medium"]
-    np.testing.assert_array_equal(held["pair_states_b"][0].numpy(), split["states_b"][1])  # next context, same goal
-    np.testing.assert_array_equal(held["pair_states_b"][1].numpy(), split["states_b"][0])
+    np.testing.assert_array_equal(held.context.states_b.numpy(), split["states_b"])
+    np.testing.assert_array_equal(held.pair.states_b[0].numpy(), split["states_b"][1])  # next context, same goal
+    np.testing.assert_array_equal(held.pair.states_b[1].numpy(), split["states_b"][0])
     assert split["task_index"][0] == split["task_index"][1]
 
 
@@ -159,13 +163,13 @@ def test_context_validation_names_the_expected_shape():
         TrajectoryPreferenceContext(*pair, ctx.states_a, ctx.actions_a + 5).validate(2, spec)
 
 
-def test_context_from_batch_takes_optional_behavior_fields_when_present():
+def test_context_from_fields_takes_optional_behavior_fields_when_present():
     ctx = _pair()
-    batch = {k: v for k, v in vars(ctx).items() if v is not None}
-    assert context_from_batch("trajectory_preference", batch).behavior_states is None
-    batch.update(behavior_states=ctx.states_a, behavior_actions=ctx.actions_a)
-    assert context_from_batch("trajectory_preference", batch).behavior_states is ctx.states_a
-    assert context_from_batch("trajectory_preference", batch).to("cpu").behavior_actions.shape == (3, 5)
+    fields = {k: v for k, v in vars(ctx).items() if v is not None}
+    assert context_from_fields("trajectory_preference", fields).behavior_states is None
+    fields.update(behavior_states=ctx.states_a, behavior_actions=ctx.actions_a)
+    assert context_from_fields("trajectory_preference", fields).behavior_states is ctx.states_a
+    assert context_from_fields("trajectory_preference", fields).to("cpu").behavior_actions.shape == (3, 5)
 
 
 def test_pair_tokens_encode_the_label_by_order():

@@ -124,7 +124,7 @@ def _config(tmp_path, method: dict, setting: str, data_flags: dict) -> str:
     return str(path)
 
 
-SIZES = {"n_layer": 1, "n_embd": 16, "n_head": 2, "lr": 0.003}
+SIZES = {"backbone": {"n_layer": 1, "n_embd": 16, "n_head": 2}, "lr": 0.003}
 
 
 @pytest.mark.parametrize(("method", "setting", "flags"), [

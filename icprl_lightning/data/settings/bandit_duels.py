@@ -42,7 +42,7 @@ from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.settings.base import Setting
 from icprl_lightning.data.store import StoredDataset
-from icprl_lightning.data.suites import BanditSuite, EvalSuite
+from icprl_lightning.data.suites import BanditSuite
 from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
 from icprl_lightning.preferences import label_agreement
 from icprl_lightning.progress import track
@@ -68,6 +68,11 @@ class BanditDuels(Setting):
     """
 
     kind = "step_preference"
+    family_type = LinearDuelingBanditFamily
+    per_task_keys = ("contexts_per_problem", "val_contexts_per_problem")
+    evaluations = frozenset({"bandit_suites"})  # weak regret, not rollouts
+    # has_folds and has_query_labels stay False: the val problems are not the training ones, and a bandit has
+    # no query states nor optimal-action labels
 
     def __init__(self, n_train_problems: int = 2000, contexts_per_problem: int = 2, n_val_problems: int = 64,
                  val_contexts_per_problem: int = 2, n_eval_problems: int = 200,
@@ -190,11 +195,7 @@ class BanditDuels(Setting):
                                   "labeled by the annotator, the eval_* splits by the family's Bradley-Terry model")
         return splits, info
 
-    # ---- evaluation --------------------------------------------------------------------------------
-    def evaluation_suites(self, family: LinearDuelingBanditFamily, data: StoredDataset) -> list[EvalSuite]:
-        """No environment rollouts: a bandit is evaluated by weak regret (``bandit_suites``)."""
-        return []
-
+    # ---- evaluation (no environment rollouts: a bandit is evaluated by weak regret) ---------------------
     def bandit_suites(self, family: LinearDuelingBanditFamily, data: StoredDataset) -> list[BanditSuite]:
         """One weak-regret evaluation per context source, on the held-out problems."""
         suites = []

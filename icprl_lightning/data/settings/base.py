@@ -24,18 +24,19 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from icprl_lightning.annotators.base import Annotator
 from icprl_lightning.annotators.bradley_terry import BradleyTerryAnnotator
-from icprl_lightning.contexts import context_fields, context_from_batch
+from icprl_lightning.contexts import context_fields, context_from_fields
 from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.store import StoredDataset
-from icprl_lightning.data.suites import EvalSuite
+from icprl_lightning.data.suites import BanditSuite, EvalSuite
 from icprl_lightning.families.base import QUALITIES, Family, TaskFamily
 from icprl_lightning.progress import track
+from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError, check_choice, check_increasing, check_int, check_positive
 
 PRETRAINING = "pretraining"  # name of a setting's extra calibrated policy (T-PRL's 50% policy)
@@ -141,9 +142,29 @@ def rollout_behavior(family: TaskFamily, tasks: np.ndarray, mixing: np.ndarray, 
 
 
 class Setting(ABC):
-    """A data recipe: ``generate(family)`` returns the splits and the manifest's info (see ``datamodule.py``)."""
+    """A data recipe: ``generate(family)`` returns the splits and the manifest's info (see ``datamodule.py``).
 
-    kind: str  # the context kind a training sample holds (``contexts.CONTEXT_TYPES``)
+    What its data offers is declared on the class, so that the DataModule and the pairing check read the
+    declarations and never the setting's type:
+
+    * ``kind``: the context kind a training sample holds (``contexts.CONTEXT_TYPES``);
+    * ``family_type``: the family class the recipe runs on;
+    * ``per_task_keys``: the names of the two arguments behind ``per_task`` (train, val), which ``pairs=True``
+      needs >= 2 (another context of the same task);
+    * ``has_folds``: train and val rows are contexts of the same training tasks, stored task-major, so each
+      row has a training-task index: batches carry it as ``task`` and cross-fitting folds of the training
+      tasks exist;
+    * ``has_query_labels``: every split holds query states and their optimal actions (DPT/DP²T's labels);
+    * ``evaluations``: the held-out evaluations its data offers (names from ``data_contract.EVALUATIONS``),
+      each built by the method of that name.
+    """
+
+    kind: ClassVar[str]
+    family_type: ClassVar[type[Family]] = Family
+    per_task_keys: ClassVar[tuple[str, str]] = ("trajectories_per_task", "val_trajectories_per_task")
+    has_folds: ClassVar[bool] = False
+    has_query_labels: ClassVar[bool] = False
+    evaluations: ClassVar[frozenset[str]] = frozenset()
     per_task: tuple[int, int]  # contexts per task in (train, val)
 
     @abstractmethod
@@ -164,11 +185,21 @@ class Setting(ABC):
         return context_fields("step_preference")
 
     def evaluation_suites(self, family: Family, data: StoredDataset) -> list[EvalSuite]:
+        """The held-out in-context rollouts (offered with ``"evaluation_suites"`` in ``evaluations``)."""
         return []
+
+    def bandit_suites(self, family: Family, data: StoredDataset) -> list[BanditSuite]:
+        """The held-out weak-regret evaluations (offered with ``"bandit_suites"`` in ``evaluations``)."""
+        raise NotImplementedError(f"{type(self).__name__} declares no bandit_suites in its evaluations")
+
+    def heldout_pairs(self, data: StoredDataset) -> dict[str, ContextSamples]:
+        """Held-out pairs per quality (offered with ``"heldout_pairs"`` in ``evaluations``)."""
+        raise NotImplementedError(f"{type(self).__name__} declares no heldout_pairs in its evaluations")
 
 
 class MDPSetting(Setting):
-    """Base of the MDP settings; see the module docstring.
+    """Base of the MDP settings; see the module docstring. Each runs on any ``TaskFamily``, serves its rows'
+    training tasks, the oracle's query labels and the held-out rollouts.
 
     Args:
         trajectories_per_task: training contexts per training task (paper: 1000 I-PRL, 5000 T-PRL pairs).
@@ -180,6 +211,11 @@ class MDPSetting(Setting):
         calibration_episodes: episodes per training task (DarkRoom) or in all (Reach) per calibration p.
         reference_episodes: episodes per held-out task for the behavior/optimal references.
     """
+
+    family_type: ClassVar[type[Family]] = TaskFamily
+    has_folds: ClassVar[bool] = True
+    has_query_labels: ClassVar[bool] = True
+    evaluations: ClassVar[frozenset[str]] = frozenset({"evaluation_suites"})
 
     def __init__(self, trajectories_per_task: int = 100, val_trajectories_per_task: int = 4,
                  eval_contexts_per_task: int = 5, quality_targets: tuple[float, float, float] = (0.2, 0.4, 0.8),
@@ -224,7 +260,7 @@ class MDPSetting(Setting):
         return {}
 
     def eval_context(self, arrays: dict[str, Any]):
-        return context_from_batch(self.kind, arrays)
+        return context_from_fields(self.kind, arrays)
 
     # ---- shared -------------------------------------------------------------------------------------
     def policy_names(self) -> tuple[str, ...]:

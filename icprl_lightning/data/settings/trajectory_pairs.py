@@ -28,13 +28,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-import torch
 
 from icprl_lightning.annotators.base import Annotator, TrajectoryQueries
 from icprl_lightning.annotators.bradley_terry import BradleyTerryAnnotator
 from icprl_lightning.annotators.labels import stored_labels
 from icprl_lightning.contexts import RewardTrajectoryContext
-from icprl_lightning.data.batches import other_rows, to_tensor
+from icprl_lightning.data.batches import other_rows, stored_context
 from icprl_lightning.data.settings.base import (
     PRETRAINING,
     MDPSetting,
@@ -45,6 +44,7 @@ from icprl_lightning.data.settings.base import (
 from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.families.base import QUALITIES, TaskFamily
 from icprl_lightning.preferences import label_agreement
+from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError, check_choice, check_interval
 
 PAIR_FIELDS = ("states_a", "actions_a", "states_b", "actions_b", "preferred")
@@ -87,6 +87,7 @@ class TrajectoryPairs(MDPSetting):
     """T-PRL pairs; see the module docstring. The other arguments as ``MDPSetting``."""
 
     kind = "trajectory_preference"
+    evaluations = frozenset({"evaluation_suites", "heldout_pairs"})
 
     stores_labels = True  # False: the kind keeps the true rewards instead (``RewardTrajectories``)
     oracle_advantages = False  # RewardTrajectories only: also keep each action's A*
@@ -151,8 +152,8 @@ class TrajectoryPairs(MDPSetting):
         arrays.update(family.oracle.query_labels(tasks, visited, optimal, family.horizon, rng))
         return arrays, stats
 
-    def heldout_pairs(self, data: StoredDataset) -> dict[str, dict[str, torch.Tensor]]:
-        """Per quality, the held-out tasks' pairs, each with another pair of its task as ``pair_*``.
+    def heldout_pairs(self, data: StoredDataset) -> dict[str, ContextSamples]:
+        """Per quality, the held-out tasks' pairs (``context``), each with another pair of its task (``pair``).
 
         The context pair is the next evaluation context of the same task and quality (the pair itself
         when there is only one per task). RewardGen's held-out pair accuracy is measured on these.
@@ -162,9 +163,8 @@ class TrajectoryPairs(MDPSetting):
             split = data[f"eval_{q}"]
             rows = np.arange(len(split["preferred"]))
             other = other_rows(rows, self.eval_contexts_per_task, 1)
-            batch = {k: to_tensor(np.asarray(split[k])) for k in PAIR_FIELDS}
-            batch.update({f"pair_{k}": to_tensor(np.asarray(split[k])[other]) for k in PAIR_FIELDS})
-            out[q] = batch
+            out[q] = ContextSamples(stored_context(self.kind, split, rows, PAIR_FIELDS),
+                                    stored_context(self.kind, split, other, PAIR_FIELDS))
         return out
 
 
@@ -177,6 +177,7 @@ class RewardTrajectories(TrajectoryPairs):
     """
 
     kind = "reward_trajectory"
+    evaluations = frozenset({"evaluation_suites"})  # no labels: no held-out pairs to order
     stores_labels = False
 
     def __init__(self, oracle_advantages: bool = False, **kwargs: Any) -> None:
@@ -199,6 +200,3 @@ class RewardTrajectories(TrajectoryPairs):
     def eval_context(self, arrays: dict[str, Any]) -> RewardTrajectoryContext:
         return RewardTrajectoryContext(arrays["behavior_states"], arrays["behavior_actions"],
                                        arrays["behavior_rewards"])
-
-    def heldout_pairs(self, data: StoredDataset) -> dict[str, dict[str, torch.Tensor]]:
-        raise ValueError("held-out pairs exist in trajectory_preference datasets only")

@@ -106,12 +106,27 @@ class DarkRoomFamily(TaskFamily):
         return [(q,) for q in qualities]
 
     def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
-        """This family's own calibration (kept: its datasets' bytes depend on it; see ``oracle.py``)."""
+        """Mixing level per target share of the optimal return R(π_p) / R* (``oracle.calibrate_mixing``), with
+        ``episodes`` per training goal on a grid of 51 levels.
+
+        An exception to the shared calibration (``families/calibration.py``), for one reason: R* is exact here,
+        the closed-form V* of each episode's own start, and DarkRoom's scale is R / R* throughout (its
+        ``references``, its normalized returns through ``TaskFamily.normalizer``, the paper's DarkRoom tables).
+        The shared default simulates the optimal policy and a uniform one and targets (R − R_uniform) /
+        (R* − R_uniform); the uniform return is ≈ 1% of R*, so both find the same mixing levels within their
+        noise (tested). The datasets' bytes depend on this calibration's draws.
+        """
         return calibrate_mixing(self, dict(targets), episodes, seed=seed)
 
     def references(self, tasks: np.ndarray, mixing: Mapping[str, float], episodes: int,
                    rng: np.random.Generator) -> dict[str, Any]:
-        """Behavior (mixed policy) and optimal returns on the held-out goals, mean over goals."""
+        """Behavior (mixed policy) and optimal returns on the held-out goals, mean over goals.
+
+        An exception to the shared ``references_by_simulation``: the optimal return is the closed-form V* of
+        each episode's start (exact, no optimal rollout), and with DarkRoom's R / R* scale no uniform reference
+        is needed, so none is stored (the normalizer then divides by the optimal return). Its behavior and
+        optimal returns agree with the shared simulation's within their noise (tested).
+        """
         reference = {}
         for quality, p in mixing.items():
             goals = np.repeat(tasks, episodes, axis=0)
