@@ -5,13 +5,23 @@
     icprl validate --config configs/icpo_darkroom.yaml --ckpt_path runs/.../last.ckpt
     icprl generate --config configs/icpo_darkroom.yaml [--data.init_args.overwrite true]
     icprl evaluate --run NAME=CONFIG:CKPT [...]                        (evaluation/command.py)
+    icprl evaluate online --config CONFIG --ckpt CKPT [...]            (evaluation/online_command.py)
     icprl import arrays.npz --out data/mine --kind step_preference --n-actions 5   (data/importer.py)
     icprl report runs/icprl/<run id>                                   (evaluation/run_report.py)
     icprl checkpoint verify|stamp PATH ...                             (checkpoints.py)
+    icprl oracle train|export ...                 (families/metaworld_reach/sac.py, sac_weights.py)
+    icprl baseline sac|dqn ...                                         (baselines/)
+    icprl analyze NAME ...                        (evaluation/<name>.py, data/checksums.py)
 
 ``fit`` / ``validate`` / ``test`` / ``predict`` / ``generate`` are a LightningCLI (``trainer_cli.py``). The
-other subcommands are plain argparse programs, each a ``main(argv)`` in its own module. This module imports
+other subcommands are plain argparse programs, each a ``main(argv)`` in its own module; ``oracle``,
+``baseline`` and ``analyze`` are groups whose second word picks the program (``GROUPS``). This module imports
 none of them until one is asked for, so ``icprl --help`` answers without loading torch or Lightning.
+
+``analyze`` holds the measurements that stand beside the results tables rather than in them: each reads a
+checkpoint's or a dataset's insides (a reward model's labels, DIT's advantages, the labels' Bayes ceiling,
+the dataset bytes) with inputs and outputs of its own, where ``evaluate`` deploys agents on held-out tasks
+and always prints the same kind of table.
 
 A user's mistake (an unknown or mistyped key, a value out of range, a bad checkpoint or dataset, a model that
 does not fit the data) is one line on stderr, ``icprl <subcommand>: error: ...``, and exit status 2; the
@@ -23,8 +33,10 @@ from __future__ import annotations
 import importlib
 import os
 import sys
+from typing import NoReturn
 
-# name -> (module, function, one line of help); an empty module means the LightningCLI (``trainer_cli.py``)
+# name -> (module, function, one line of help); an empty module means the LightningCLI (``trainer_cli.py``) or,
+# for a name of GROUPS, the program its second word names
 SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
     "fit": ("", "", "train a method (generates its dataset first if missing)"),
     "validate": ("", "", "one validation epoch of a checkpoint"),
@@ -38,6 +50,40 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
     "report": ("icprl_lightning.evaluation.run_report", "main",
                "a run's learning curves and last held-out table, from its directory, no server needed"),
     "checkpoint": ("icprl_lightning.checkpoints", "main", "verify checkpoints, or stamp trusted old ones"),
+    "oracle": ("", "", "train the Meta-World Reach SAC oracle, or export its weights for data generation"),
+    "baseline": ("", "", "RL from scratch on each held-out task: SAC (Meta-World Reach), DQN (DarkRoom)"),
+    "analyze": ("", "", "measurements beside the tables: reward models, DIT's advantages, label ceiling, checksums"),
+}
+# group -> verb -> (module, function, one line of help)
+GROUPS: dict[str, dict[str, tuple[str, str, str]]] = {
+    "oracle": {
+        "train": ("icprl_lightning.families.metaworld_reach.sac", "main",
+                  "train one goal-conditioned SB3 SAC on Reach goals; pick its behavior checkpoints"),
+        "export": ("icprl_lightning.families.metaworld_reach.sac_weights", "main",
+                   "write a training run's weights as a checksummed, pickle-free oracle directory"),
+    },
+    "baseline": {
+        "sac": ("icprl_lightning.baselines.sac_from_scratch", "main",
+                "SB3 SAC from scratch on each held-out Meta-World Reach goal"),
+        "dqn": ("icprl_lightning.baselines.dqn_from_scratch", "main",
+                "SB3 DQN from scratch on each held-out DarkRoom goal"),
+    },
+    "analyze": {
+        "reward-quality": ("icprl_lightning.evaluation.reward_quality", "main",
+                           "RewardGen's held-out pair accuracy and label correlation with the latent reward"),
+        "reward-bayes": ("icprl_lightning.evaluation.reward_bayes", "main",
+                         "the Bayes-optimal DarkRoom reward from one T-PRL pair, in the same measures"),
+        "icrg-labels": ("icprl_lightning.evaluation.icrg_labels", "main",
+                        "ICRG's reward labels against the latent reward, in pretraining and at deployment"),
+        "dit-advantages": ("icprl_lightning.evaluation.dit_advantages", "main",
+                           "correlation of DIT's advantages with each step's progress (and the SAC oracle's A*)"),
+        "dit-weights": ("icprl_lightning.evaluation.dit_weights", "main",
+                        "which DarkRoom actions DIT's exp(A/eta) weights favour, against the behavior's"),
+        "label-ceiling": ("icprl_lightning.evaluation.label_ceiling", "main",
+                          "the exact goal posterior of DarkRoom I-PRL contexts' labels: what any learner can earn"),
+        "checksums": ("icprl_lightning.data.checksums", "main",
+                      "generate configs' datasets in a scratch directory and print or compare their SHA-256"),
+    },
 }
 VERBOSE_ENV = "ICPRL_VERBOSE"
 
@@ -50,6 +96,25 @@ def usage() -> str:
     lines += [f"  {name:<{width}}  {text}" for name, (_, _, text) in SUBCOMMANDS.items()]
     lines += ["", "options:", f"  --verbose{' ' * (width - 7)}show the traceback of an error (or {VERBOSE_ENV}=1)"]
     return "\n".join(lines)
+
+
+def group_usage(group: str) -> str:
+    verbs = GROUPS[group]
+    width = max(map(len, verbs))
+    lines = [f"usage: icprl {group} VERB [options]      (icprl {group} VERB --help for its options)", "",
+             SUBCOMMANDS[group][2], "", "verbs:"]
+    lines += [f"  {verb:<{width}}  {text}" for verb, (_, _, text) in verbs.items()]
+    return "\n".join(lines)
+
+
+def _unknown(what: str, name: str, known: dict, where: str, listing: str) -> NoReturn:
+    """Exit 2 with one line naming the unknown ``name`` and the closest known one."""
+    import difflib
+
+    close = difflib.get_close_matches(name, known, n=1)
+    sys.stderr.write(f"{where}: error: unknown {what} {name!r}{f' (did you mean {close[0]!r}?)' if close else ''}; "
+                     f"{listing} lists them\n")
+    raise SystemExit(2)
 
 
 def run_cli(args: list[str], run: bool = True):
@@ -107,14 +172,21 @@ def main(args: list[str] | None = None) -> None:
         return
     name, rest = argv[0], argv[1:]
     if name not in SUBCOMMANDS:
-        import difflib
-
-        close = difflib.get_close_matches(name, SUBCOMMANDS, n=1)
-        sys.stderr.write(f"icprl: error: unknown subcommand {name!r}"
-                         f"{f' (did you mean {close[0]!r}?)' if close else ''}; icprl --help lists them\n")
-        raise SystemExit(2)
+        _unknown("subcommand", name, SUBCOMMANDS, "icprl", "icprl --help")
+    module, function, _ = SUBCOMMANDS[name]
+    if name in GROUPS:
+        if not rest:
+            sys.stderr.write(f"icprl {name}: error: name one of {', '.join(GROUPS[name])}; icprl {name} --help "
+                             "says what each does\n")
+            raise SystemExit(2)
+        if rest[0] in ("-h", "--help"):
+            print(group_usage(name))
+            return
+        if rest[0] not in GROUPS[name]:
+            _unknown("verb", rest[0], GROUPS[name], f"icprl {name}", f"icprl {name} --help")
+        module, function, _ = GROUPS[name][rest[0]]
+        name, rest = f"{name} {rest[0]}", rest[1:]
     try:
-        module, function, _ = SUBCOMMANDS[name]
         if name == "generate":
             _generate(rest)
         elif not module:

@@ -35,7 +35,7 @@ TINY_DATA = ["--data.init_args.setting.init_args.trajectories_per_task", "3",
              "--data.init_args.setting.init_args.calibration_episodes", "2",
              "--data.init_args.setting.init_args.reference_episodes", "2",
              "--data.init_args.progress", "false"]
-TINY_MODEL = ["--model.init_args.n_layer", "1", "--model.init_args.n_embd", "16", "--model.init_args.n_head", "2"]
+TINY_MODEL = ["--model.init_args.backbone", "{n_layer: 1, n_embd: 16, n_head: 2}"]
 SETTINGS = {"step_preference": StepPreferences, "reward": RewardContexts, "trajectory_preference": TrajectoryPairs,
             "reward_trajectory": RewardTrajectories}
 REACH_SETTING = {"val_trajectories_per_task": 2, "eval_contexts_per_task": 4, "calibration_episodes": 8,
@@ -155,7 +155,7 @@ def config_args(config: str | Path) -> list[str]:
 
 
 def darkroom_tprl_config(path: Path, data_root: str, setting: dict[str, Any]) -> Path:
-    """A data-only config of DarkRoom T-PRL pairs at ``path`` (what the scripts' ``--data-config`` reads)."""
+    """A data-only config of DarkRoom T-PRL pairs at ``path`` (what ``icprl analyze``'s ``--data-config`` reads)."""
     path.write_text(yaml.safe_dump({"data": {
         "class_path": "icprl_lightning.data.PreferenceDataModule",
         "init_args": {"family": {"class_path": "icprl_lightning.families.darkroom.DarkRoomFamily"},
@@ -173,3 +173,17 @@ def save_untrained(module, path: Path) -> Path:
     trainer.strategy.connect(module)
     trainer.save_checkpoint(path)
     return path
+
+
+def served_fields(batch) -> set[str]:
+    """The fields a typed training batch (``icprl_lightning.samples``) serves: its members that are not None, a
+    context's own fields dotted (``context.states``, ``pair.preferred``, ``trajectory_a.rewards``, ``task``)."""
+    import dataclasses
+
+    out = set()
+    for name, value in batch._asdict().items():
+        if dataclasses.is_dataclass(value):
+            out |= {f"{name}.{f.name}" for f in dataclasses.fields(value) if getattr(value, f.name) is not None}
+        elif value is not None:
+            out.add(name)
+    return out

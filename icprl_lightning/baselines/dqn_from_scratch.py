@@ -20,7 +20,7 @@ DarkRoom oracle's share-of-optimal convention.
 Budget. The paper trains 1,000 episodes (100,000 steps) per goal; the CPU default is 100 episodes
 (10,000 steps, ≈ 16 s of CPU) per goal on the 20 held-out goals:
 
-    python -m icprl_lightning.baselines.dqn_from_scratch --episodes 100 \
+    icprl baseline dqn --episodes 100 \
         --out docs/results/dqn_from_scratch_darkroom.json
 
 Evaluation uses the greedy policy as a lookup table over the 100 cells (``greedy_table_act``): the same
@@ -41,12 +41,13 @@ import stable_baselines3
 import torch
 from stable_baselines3 import DQN
 
+from icprl_lightning.baselines.from_scratch import from_scratch_record, train_from_scratch
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.darkroom.env import N_ACTIONS
 from icprl_lightning.families.darkroom.gym_env import DarkRoomGoalEnv
 from icprl_lightning.families.darkroom.oracle import optimal_actions
-from icprl_lightning.families.sb3_common import Act, from_scratch_record, train_from_scratch
 from icprl_lightning.io import write_json_atomic
+from icprl_lightning.sb3 import Act
 
 PAPER_EPISODES = 1000
 DEFAULT_EPISODES = 100
@@ -113,7 +114,7 @@ def run(family: DarkRoomFamily, goals: np.ndarray, seeds: Sequence[int], episode
 
 
 def main(args: Sequence[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(prog="icprl baseline dqn", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--episodes", type=int, default=DEFAULT_EPISODES,
                         help=f"training episodes per goal (paper: {PAPER_EPISODES})")
@@ -132,7 +133,7 @@ def main(args: Sequence[str] | None = None) -> Path:
     result = run(family, goals, ns.seeds, ns.episodes, ns.eval_every, ns.eval_episodes, ns.test_episodes,
                  progress=True)
     result["family_seed"] = ns.family_seed
-    result["command"] = "python -m icprl_lightning.baselines.dqn_from_scratch " + " ".join(
+    result["command"] = "icprl baseline dqn " + " ".join(
         sys.argv[1:] if args is None else args)
     out = write_json_atomic(ns.out, result)
     print(f"return {result['return']['mean']:.1f} ± {result['return']['sem']:.1f}, success "

@@ -15,7 +15,7 @@ step here (one gradient step per env step, 256×256 networks, one torch thread),
 20 episodes (3,000 steps, ≈ 100 s of CPU) per goal: a cheap lower bound on the paper's baseline,
 stated in the output JSON. Run it as
 
-    python -m icprl_lightning.baselines.sac_from_scratch --episodes 20 --test-episodes 5 \
+    icprl baseline sac --episodes 20 --test-episodes 5 \
         --out docs/results/sac_from_scratch_metaworld.json
 
 and pass ``--episodes 1000`` for the paper's budget.
@@ -35,12 +35,13 @@ import stable_baselines3
 import torch
 from stable_baselines3 import SAC
 
+from icprl_lightning.baselines.from_scratch import from_scratch_record, train_from_scratch
 from icprl_lightning.families.metaworld_reach import ReachTaskFamily
 from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON
 from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
 from icprl_lightning.families.metaworld_reach.oracle import expert_actions, normalized_return
-from icprl_lightning.families.sb3_common import Act, from_scratch_record, train_from_scratch
 from icprl_lightning.io import write_json_atomic
+from icprl_lightning.sb3 import Act
 
 PAPER_EPISODES = 1000
 DEFAULT_EPISODES = 20
@@ -91,7 +92,7 @@ def run(goals: np.ndarray, seeds: Sequence[int], episodes: int, horizon: int = H
 
 
 def main(args: Sequence[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(prog="icprl baseline sac", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--episodes", type=int, default=DEFAULT_EPISODES,
                         help=f"training episodes per goal (paper: {PAPER_EPISODES})")
@@ -109,7 +110,7 @@ def main(args: Sequence[str] | None = None) -> Path:
     result = run(goals, ns.seeds, ns.episodes, ns.horizon, ns.eval_every, ns.eval_episodes, ns.test_episodes,
                  progress=True)
     result["family_seed"] = ns.family_seed
-    result["command"] = "python -m icprl_lightning.baselines.sac_from_scratch " + " ".join(args or sys.argv[1:])
+    result["command"] = "icprl baseline sac " + " ".join(sys.argv[1:] if args is None else args)
     out = write_json_atomic(ns.out, result)
     print(f"return {result['return']['mean']:.2f} ± {result['return']['sem']:.2f}, success "
           f"{result['success']['mean']:.2f} ± {result['success']['sem']:.2f} -> {out}")

@@ -6,6 +6,7 @@
         --baseline "DQN from scratch=docs/results/dqn_from_scratch_darkroom.json"
     icprl evaluate --title "Linear dueling bandits" --seeds 0 \
         --run ICPO=configs/icpo_bandit.yaml:runs/icprl/<id>/checkpoints/last.ckpt --out results/bandit
+    icprl evaluate online --config CONFIG --ckpt CHECKPOINT ...   (asked online: icprl evaluate online --help)
 
 Each ``--run`` is NAME=CONFIG:CHECKPOINT[,CHECKPOINT...]: several checkpoints are *training seeds* of one
 method on the same data, and each row is then the mean ± sem over training seeds of each seed's
@@ -46,6 +47,7 @@ data's context kind, state size, action space and context length, so a bandit ch
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 from typing import Any, NoReturn
@@ -251,6 +253,11 @@ def rollout_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | 
 
 
 def main(argv: list[str] | None = None) -> dict:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["online"]:  # the online mode: its own options (evaluation/online_command.py)
+        from icprl_lightning.evaluation.online_command import main as online_main
+
+        return online_main(argv[1:])
     args = parse_args(argv)
     greedy = False if args.sample else True if args.greedy else None  # None: each method's own default
     datamodules = {}

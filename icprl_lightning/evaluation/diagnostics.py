@@ -1,4 +1,4 @@
-"""Context diagnostics: what a deployed policy reads from its context (issue 15).
+"""Context diagnostics: what a deployed policy reads from its context.
 
 A preference method should infer the task from the *labels* of its context. Each diagnostic changes an
 evaluation context in exactly one stated way, all else equal (states, actions, task, episode seed):

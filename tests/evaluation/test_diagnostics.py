@@ -1,4 +1,4 @@
-"""Context diagnostics change an evaluation context only as stated (issue 15)."""
+"""Context diagnostics change an evaluation context only as stated."""
 
 from __future__ import annotations
 

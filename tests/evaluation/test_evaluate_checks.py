@@ -21,10 +21,11 @@ from icprl_lightning.evaluation.report import aligned_tables
 from icprl_lightning.methods.dpt import DPTModule
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
+from icprl_lightning.models.config import TransformerConfig
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 DARKROOM, BANDIT = str(REPO / "configs/icpo_darkroom.yaml"), str(REPO / "configs/icpo_bandit.yaml")
-TINY = dict(n_layer=1, n_embd=16, n_head=2)
+TINY = dict(backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 
 
 def _save(module: torch.nn.Module, path: Path) -> str:
@@ -110,7 +111,7 @@ def test_icrg_fits_the_trajectory_pairs_it_labels(tmp_path):
     from icprl_lightning.methods.icrg import ICRGModule
 
     module = ICRGModule(state_dim=2, action_dim=5, discrete=True, max_context=100, **TINY,
-                        reward_gen_hparams=dict(TINY, max_context=100, dropout=0.0))
+                        reward_gen_hparams=dict(backbone=TINY["backbone"].as_dict(), max_context=100))
     checkpoint = _save(module, tmp_path / "m.ckpt")
     run_datamodule("ICRG", str(REPO / "configs/icrg_darkroom.yaml"), [checkpoint])
     with pytest.raises(ValueError, match="ICRGModule takes trajectory_preference contexts, the data step_preference"):

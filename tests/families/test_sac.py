@@ -17,13 +17,9 @@ from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.darkroom.gym_env import DarkRoomGoalEnv
 from icprl_lightning.families.metaworld_reach.env import latent_reward
 from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
-from icprl_lightning.families.metaworld_reach.sac import SACOracle, calibrate_checkpoints, train_sac_oracle
-from icprl_lightning.families.sb3_common import (
-    EvalCheckpointCallback,
-    EvalRecord,
-    run_episodes,
-)
+from icprl_lightning.families.metaworld_reach.sac import SACTrainingRun, calibrate_checkpoints, train_sac_oracle
 from icprl_lightning.io import write_json_atomic
+from icprl_lightning.sb3 import EvalCheckpointCallback, EvalRecord, run_episodes
 
 # Inside reach-v3's goal box (x ∈ [−0.1, 0.1], y ∈ [0.8, 0.9], z ∈ [0.05, 0.3]); no ML1 call (≈7 s) needed.
 GOALS = np.array([[0.05, 0.85, 0.2], [-0.05, 0.82, 0.1]])
@@ -126,7 +122,7 @@ def test_calibrate_checkpoints_on_hand_values():
 
 
 def test_sac_oracle_reloads_and_advantage_is_centred_on_the_policy(oracle_dir):
-    oracle = SACOracle(oracle_dir)
+    oracle = SACTrainingRun(oracle_dir)
     env = ReachGoalEnv(GOALS, horizon=30, goal_visible=True)
     obs, _ = env.reset(seed=0)
     states = []
@@ -194,11 +190,13 @@ def test_best_checkpoint_is_restored_and_greedy_table_matches_predict():
 
 
 def test_dqn_from_scratch_command_tiny_budget(tmp_path):
-    out = dqn_from_scratch.main(["--episodes", "3", "--n-goals", "2", "--eval-every", "1", "--eval-episodes", "2",
-                                 "--test-episodes", "3", "--out", str(tmp_path / "dqn.json")])
-    loaded = json.loads(out.read_text())
+    from icprl_lightning.cli import main
+
+    main(["baseline", "dqn", "--episodes", "3", "--n-goals", "2", "--eval-every", "1", "--eval-episodes", "2",
+          "--test-episodes", "3", "--out", str(tmp_path / "dqn.json")])
+    loaded = json.loads((tmp_path / "dqn.json").read_text())
     assert loaded["n_goals"] == 2 and loaded["episodes_per_goal"] == 3
-    assert loaded["command"].startswith("python -m icprl_lightning.baselines.dqn_from_scratch")
+    assert loaded["command"].startswith("icprl baseline dqn --episodes 3")
     for key in ("return", "success", "normalized_return"):
         assert math.isfinite(loaded[key]["mean"]) and math.isfinite(loaded[key]["sem"])
     for goal in loaded["per_goal"]:
@@ -208,11 +206,19 @@ def test_dqn_from_scratch_command_tiny_budget(tmp_path):
 
 
 @pytest.mark.slow
-def test_sac_oracle_command_per_task(tmp_path):
-    from icprl_lightning.families.metaworld_reach import sac
+def test_sac_oracle_commands_train_then_export_per_task(tmp_path):
+    """``icprl oracle train`` on one goal (the paper's per-task variant), then ``icprl oracle export`` of its run."""
+    from icprl_lightning.cli import main
+    from icprl_lightning.families.metaworld_reach.sac_weights import ExportedSAC
 
-    out = sac.main(["--goals", "train", "--goal-index", "0", "--timesteps", "300", "--checkpoint-every", "150",
-                    "--eval-episodes", "1", "--horizon", "30", "--out", str(tmp_path / "o")])
-    summary = SACOracle(out).summary
+    out = tmp_path / "o"
+    main(["oracle", "train", "--goals", "train", "--goal-index", "0", "--timesteps", "300", "--checkpoint-every",
+          "150", "--eval-episodes", "1", "--horizon", "30", "--out", str(out)])
+    summary = SACTrainingRun(out).summary
     assert len(summary["goals"]) == 1 and summary["goal_split"] == "train"
     assert [c["step"] for c in summary["checkpoints"]] == [0, 150, 300]
+    assert summary["command"].startswith("icprl oracle train --goals train --goal-index 0")
+    main(["oracle", "export", str(out), "--out", str(tmp_path / "exported"), "--targets", "0.5"])
+    exported = ExportedSAC(tmp_path / "exported")
+    assert exported.levels == (0.5, 1.0)
+    assert exported.manifest["training"]["command"] == summary["command"]

@@ -12,12 +12,12 @@ import torch
 
 from icprl_lightning.data.settings import RewardContexts, StepPreferences, TrajectoryPairs
 from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
-from icprl_lightning.families.metaworld_reach.sac import SACOracle, train_sac_oracle
+from icprl_lightning.families.metaworld_reach.sac import SACTrainingRun, train_sac_oracle
 from icprl_lightning.families.metaworld_reach.sac_family import DEFAULT_ORACLE, ReachSACTaskFamily
 from icprl_lightning.families.metaworld_reach.sac_weights import (
     CHECKSUMS,
     MANIFEST,
-    SACOracleWeights,
+    ExportedSAC,
     export_sac_oracle,
 )
 from icprl_lightning.io import sha256
@@ -65,8 +65,8 @@ def test_export_writes_weights_manifest_and_checksums(run_dir, exported):
 
 
 def test_weights_reproduce_sb3_actions_and_scaled_q(run_dir, exported):
-    sb3 = SACOracle(run_dir)  # the final SB3 model: reward_scale divides its Q
-    ours = SACOracleWeights(exported)
+    sb3 = SACTrainingRun(run_dir)  # the final SB3 model: reward_scale divides its Q
+    ours = ExportedSAC(exported)
     obs = _obs(6)
     np.testing.assert_allclose(ours.mean_actions(obs), sb3.model.predict(obs, deterministic=True)[0], atol=1e-6)
     actions = np.random.default_rng(1).uniform(-1, 1, (6, 4)).astype(np.float32)
@@ -92,7 +92,7 @@ def test_tampered_or_pickled_files_are_refused(exported, tmp_path):
     data[-20] ^= 0xFF
     (copy / "actor_020.pt").write_bytes(bytes(data))
     with pytest.raises(ValueError, match="checksum mismatch"):
-        SACOracleWeights(copy)
+        ExportedSAC(copy)
 
     class Payload:
         def __reduce__(self):
@@ -104,9 +104,9 @@ def test_tampered_or_pickled_files_are_refused(exported, tmp_path):
     lines = [f"{sha256(copy / f)}  {f}" for f in sorted(p.name for p in copy.iterdir() if p.name != CHECKSUMS)]
     (copy / CHECKSUMS).write_text("\n".join(lines) + "\n")  # a consistent but malicious directory
     with pytest.raises(pickle.UnpicklingError):
-        SACOracleWeights(copy)
+        ExportedSAC(copy)
     with pytest.raises(FileNotFoundError, match="not an exported SAC oracle"):
-        SACOracleWeights(tmp_path)
+        ExportedSAC(tmp_path)
 
 
 @pytest.fixture(scope="module")
@@ -164,7 +164,7 @@ def test_sac_family_generates_the_paper_recipes(family):
 
 @pytest.mark.skipif(not DEFAULT_ORACLE.exists(), reason="the committed SAC oracle is not exported yet")
 def test_the_committed_oracle_loads_and_verifies():
-    oracle = SACOracleWeights(DEFAULT_ORACLE)
+    oracle = ExportedSAC(DEFAULT_ORACLE)
     assert oracle.levels == (0.2, 0.4, 0.5, 0.8, 1.0)
     manifest = oracle.manifest
     assert manifest["training"]["command"].startswith("python -m icprl_lightning.families.metaworld_reach.sac ")
@@ -200,126 +200,3 @@ def test_reach_ipref_configs_are_the_sac_recipe_and_overlays_switch_recipes(expo
         assert type(datamodule_from_config(*config(name), root_dir=str(tmp_path)).family) is ReachTaskFamily, name
         dm = datamodule_from_config(*config(name, "sac_oracle"), str(local), root_dir=str(tmp_path))
         assert isinstance(dm.family, ReachSACTaskFamily) and dm.family.oracle_dir == exported, name
-
-
-def test_scale_curves_tabulate_and_plot_what_is_there(tmp_path):
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-    import reach_scale_curves
-
-    def row(value):
-        return {"return": -10.0, "normalized_return": value, "normalized_return_sem": 0.01, "training_seeds": 3}
-
-    for recipe, k, icpo in (("sac", 1, 0.5), ("sac", 2, 0.6), ("scripted", 1, 0.7)):
-        results = {m: {q: row(v) for q in ("low", "medium", "high")}
-                   for m, v in (("DPT", 0.9), ("DP2T", 0.8), ("ICPO", icpo), ("behavior", 0.3))}
-        diagnostics = {m: {c: {"medium": row(0.1)} for c in ("flipped_labels", "random_labels", "other_task")}
-                       for m in ("DP2T", "ICPO")}
-        (tmp_path / f"metaworld_{recipe}_x{k}.json").write_text(json.dumps({"results": results,
-                                                                             "diagnostics": diagnostics}))
-    reach_scale_curves.main(["--results", str(tmp_path), "--out", str(tmp_path / "scale")])
-    md = (tmp_path / "scale.md").read_text()
-    assert "| ICPO | 40 | 3 | 0.60 ± 0.01 | 0.60 ± 0.01 | 0.60 ± 0.01 |" in md
-    assert "- ICPO, 20 contexts / goal: 0.50 / 0.10 / 0.10 / 0.10" in md
-    assert "Not run: 80, 160 contexts per goal." in md and "Not run: 40, 80, 160" in md
-    assert (tmp_path / "scale.png").stat().st_size > 0
-
-    refit = {"results": {"ICPO": {q: row(0.75) for q in ("low", "medium", "high")}},
-             "diagnostics": {"ICPO": {c: {"medium": row(0.2)} for c in ("flipped_labels", "random_labels")}}}
-    (tmp_path / "refit.json").write_text(json.dumps(refit))
-    reach_scale_curves.main(["--results", str(tmp_path), "--out", str(tmp_path / "scale"),
-                             "--rows", f"sac:1={tmp_path / 'refit.json'}:ICPO"])
-    md = (tmp_path / "scale.md").read_text()
-    assert "| ICPO | 20 | 3 | 0.75 ± 0.01 |" in md and "| ICPO | 40 | 3 | 0.60 ± 0.01 |" in md
-    assert "- ICPO, 20 contexts / goal: 0.75 / 0.20 / 0.20 / –" in md and "ICPO from " in md
-    for bad in (f"sac:4={tmp_path / 'refit.json'}:ICPO", f"sac:1={tmp_path / 'refit.json'}:DPT", "sac1=x"):
-        with pytest.raises(SystemExit, match="--rows"):
-            reach_scale_curves.main(["--results", str(tmp_path), "--out", str(tmp_path / "scale"), "--rows", bad])
-
-
-def test_from_scratch_curve_normalizes_per_goal_and_finds_the_crossing(tmp_path, capsys):
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-    import sac_from_scratch_curve
-
-    def run(returns):  # uniform −40, expert −10: normalized (R + 40) / 30
-        return {"eval_curve": [[150 * (i + 1), r, 0.0] for i, r in enumerate(returns)],
-                "reference_returns": {"uniform": -40.0, "expert": -10.0}}
-
-    scratch = {"horizon": 150,
-               "per_goal": [{"runs": [run([-40.0, -31.0, -25.0])]}, {"runs": [run([-34.0, -25.0, -19.0])]}]}
-    (tmp_path / "scratch.json").write_text(json.dumps(scratch))
-    (tmp_path / "zero.json").write_text(json.dumps({"results": {"ICPO": {"medium": {"normalized_return": 0.5}},
-                                                                "expert": {"medium": {"normalized_return": 1.0}}}}))
-    episodes, mean, _ = sac_from_scratch_curve.curve(scratch)
-    np.testing.assert_allclose(episodes, [1, 2, 3])
-    np.testing.assert_allclose(mean, [0.1, 0.4, 0.6])
-    sac_from_scratch_curve.main([str(tmp_path / "scratch.json"), "--zero-shot", str(tmp_path / "zero.json"),
-                                 "--out", str(tmp_path / "curve")])
-    out = capsys.readouterr().out
-    assert "ICPO: zero-shot 0.50; SAC from scratch reaches it after 3 episodes" in out and "expert" not in out
-    assert (tmp_path / "curve.png").exists()
-
-
-@pytest.mark.skipif(not DEFAULT_ORACLE.exists(), reason="the committed SAC oracle is not exported yet")
-def test_label_truth_script_scores_pairs_against_mujoco(monkeypatch):
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-    import sac_label_truth
-
-    out = sac_label_truth.measure(episodes=1, every=50, seed=0)
-    assert out["pairs"] == 3
-    for key in ("sac_sign_agreement_with_true", "surrogate_sign_agreement_with_true", "true_prefers_80_percent"):
-        assert 0.0 <= out[key] <= 1.0
-
-
-def test_action_balance_separates_a_biased_rejected_side(tmp_path):
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-    import ipref_action_balance
-
-    rng = np.random.default_rng(0)
-    a, b = rng.uniform(-1, 1, (50, 10, 4)), rng.uniform(-1, 1, (50, 10, 4)) - 0.5  # the alternative sits lower
-    np.save(tmp_path / "actions.npy", a)
-    np.save(tmp_path / "alt_actions.npy", b)
-    np.save(tmp_path / "preferred.npy", np.ones((50, 10), dtype=np.uint8))
-    out = ipref_action_balance.balance(tmp_path)
-    np.testing.assert_allclose(out["difference_of_means"], 0.5, atol=0.1)
-    assert all(d > 0.5 for d in out["mean_abs_pair_difference"])
-    np.save(tmp_path / "actions.npy", a[..., 0])
-    with pytest.raises(ValueError, match="continuous actions"):
-        ipref_action_balance.balance(tmp_path)
-
-
-def test_action_balance_by_distance_splits_near_and_far_steps(tmp_path):
-    """--near R: steps whose hand (states[..., :3]) lies within R of the task's goal, against the others."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-    import ipref_action_balance
-
-    split = tmp_path / "train"
-    split.mkdir()
-    (tmp_path / "tasks").mkdir()
-    np.save(tmp_path / "tasks" / "train_goals.npy", np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]))
-    states = np.zeros((2, 4, 39), dtype=np.float32)
-    states[:, 2:, :3] = 5.0  # the last two steps of each row are far from both goals
-    states[1, :2, :3] = 1.0  # row 1 (task 1) starts on its goal
-    np.save(split / "states.npy", states)
-    np.save(split / "task_index.npy", np.array([0, 1]))
-    np.save(split / "actions.npy", np.where(states[..., :1] == 5.0, 1.0, 0.5) * np.ones((2, 4, 4)))
-    np.save(split / "alt_actions.npy", -np.ones((2, 4, 4)))
-    np.save(split / "preferred.npy", np.ones((2, 4), dtype=np.uint8))
-    out = ipref_action_balance.balance_by_distance(tmp_path, "train", radius=0.1)
-    assert out["near"]["share"] == 0.5 and out["far"]["share"] == 0.5
-    assert out["near"]["mean_preferred"] == [0.5] * 4 and out["far"]["mean_preferred"] == [1.0] * 4
-    assert out["near"]["mean_rejected"] == [-1.0] * 4

@@ -17,7 +17,7 @@ import torch
 from stable_baselines3 import SAC
 
 from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, OBS_DIM
-from icprl_lightning.families.metaworld_reach.sac_weights import SACOracleWeights, export_sac_oracle
+from icprl_lightning.families.metaworld_reach.sac_weights import ExportedSAC, export_sac_oracle
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -75,7 +75,7 @@ def _run(tmp_path: Path, returns=(-100.0, -80.0, -40.0, -10.0)) -> tuple[Path, l
 
 def test_export_reads_the_zips_tensors_and_matches_sb3(tmp_path):
     run, models = _run(tmp_path)
-    oracle = SACOracleWeights(export_sac_oracle(run, tmp_path / "oracle", targets=(0.2, 0.8)))
+    oracle = ExportedSAC(export_sac_oracle(run, tmp_path / "oracle", targets=(0.2, 0.8)))
     obs = np.random.default_rng(0).standard_normal((5, OBS_DIM)).astype(np.float32)
     final = models[-1]
     np.testing.assert_allclose(oracle.mean_actions(obs), final.predict(obs, deterministic=True)[0], atol=1e-6)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from icprl_lightning.cli import SUBCOMMANDS, main
+from icprl_lightning.cli import GROUPS, SUBCOMMANDS, main
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = str(REPO / "configs/icpo_darkroom.yaml")
@@ -80,3 +80,36 @@ def test_help_lists_every_subcommand_without_importing_torch_or_lightning():
     assert out.splitlines()[-1] == "heavy: []", out
     for name in SUBCOMMANDS:
         assert f"\n  {name} " in out, name
+
+
+@pytest.mark.parametrize(("argv", "expected"), [
+    (["oracle", "trian"], "icprl oracle: error: unknown verb 'trian' (did you mean 'train'?); icprl oracle --help "
+                          "lists them\n"),
+    (["baseline"], "icprl baseline: error: name one of sac, dqn; icprl baseline --help says what each does\n"),
+    (["analyze", "label_ceiling"], "icprl analyze: error: unknown verb 'label_ceiling' (did you mean "
+                                   "'label-ceiling'?); icprl analyze --help lists them\n"),
+])
+def test_a_missing_or_unknown_verb_is_one_line(capsys, argv, expected):
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert capsys.readouterr().err == expected
+
+
+def test_a_mistake_inside_a_verb_is_one_line_naming_the_command(capsys, tmp_path):
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as info:
+        main(["oracle", "export", str(tmp_path / "no_run"), "--out", str(tmp_path / "oracle")])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("icprl oracle export: error: ") and "summary.json" in err, err
+    assert "icprl oracle train" in err  # says how to make the run it expected
+
+
+@pytest.mark.parametrize(("group", "verb"), [(g, v) for g, verbs in GROUPS.items() for v in verbs])
+def test_every_verb_answers_help_under_its_own_name(capsys, group, verb):
+    with pytest.raises(SystemExit) as info:
+        main([group, verb, "--help"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.startswith(f"usage: icprl {group} {verb}")

@@ -29,7 +29,7 @@ critics (the value SAC's own policy update uses). Averaged over actions drawn fr
 Monte Carlo error.
 
 Hyperparameters. SB3's defaults (γ = 0.99, latent reward as is) learn and then lose Reach: a 200k-transition
-run reached 0.8 success at 110k and fell to 0.1 (docs/RESULTS.md). The committed oracle
+run reached 0.8 success at 110k and fell to 0.1. The committed oracle
 (``sac_oracle_v1``) was trained with the reward scaled by 10 (``--reward-scale``: Q̂ is divided by it again,
 so A* stays in latent-return units) and γ = 0.95 (``--gamma``), 4 envs collecting at once; everything else
 is SB3's default. On the same seed, γ = 0.99 with two gradient steps per vector step plateaued at about
@@ -39,10 +39,12 @@ Run (writes ``<out>/checkpoints/step_*.zip`` and ``<out>/summary.json`` through 
 into place, so an interrupted run leaves nothing half-written), then export the weights the data recipe
 reads (``sac_weights.py``):
 
-    python -m icprl_lightning.families.metaworld_reach.sac --goals all --n-envs 4 --reward-scale 10 \
+    icprl oracle train --goals all --n-envs 4 --reward-scale 10 \
         --gamma 0.95 --timesteps 400000 --checkpoint-every 10000 --eval-episodes 20 --out runs/sac_oracle/C
-    python -m icprl_lightning.families.metaworld_reach.sac_weights runs/sac_oracle/C \
-        --out icprl_lightning/families/metaworld_reach/sac_oracle_v1
+    icprl oracle export runs/sac_oracle/C --out icprl_lightning/families/metaworld_reach/sac_oracle_v1
+
+``SACTrainingRun`` reads such a run directory back (its SB3 zips, unpickled: our own runs only);
+``sac_weights.ExportedSAC`` is the exported, pickle-free form that data generation loads.
 """
 
 from __future__ import annotations
@@ -67,8 +69,8 @@ from icprl_lightning.families.metaworld_reach import ReachTaskFamily
 from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON
 from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
 from icprl_lightning.families.metaworld_reach.oracle import QUALITY_TARGETS, expert_actions
-from icprl_lightning.families.sb3_common import Act, EvalCheckpointCallback, EvalRecord, run_episodes
 from icprl_lightning.io import check_replaceable, jsonable, staged_directory
+from icprl_lightning.sb3 import Act, EvalCheckpointCallback, EvalRecord, run_episodes
 
 SUMMARY = "summary.json"  # the marker of an oracle directory: only one with it (this schema) is replaced
 SCHEMA_VERSION = 1
@@ -151,7 +153,7 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
     ``summary.json`` of this schema); anything else is refused.
 
     ``reward_scale`` multiplies the latent reward SAC learns from (evaluation returns stay latent); the
-    critic's Q̂ is divided by it again in ``SACOracle.q_values``, so A* is in latent-return units.
+    critic's Q̂ is divided by it again in ``SACTrainingRun.q_values``, so A* is in latent-return units.
     ``sac_kwargs`` override SB3's defaults (e.g. ``learning_rate``, ``gradient_steps``, ``batch_size``).
     """
     if n_envs < 1:
@@ -205,8 +207,8 @@ def train_sac_oracle(goals: np.ndarray, out: str | Path, timesteps: int, seed: i
     return out
 
 
-class SACOracle:
-    """A trained SAC oracle directory: the converged policy π and critic, the behavior checkpoints.
+class SACTrainingRun:
+    """A SAC oracle's training run directory: the converged policy π and critic, the behavior checkpoints.
 
     Observations are goal-visible [B, 39] (``ReachGoalEnv(goal_visible=True)``), actions [B, 4].
     """
@@ -215,8 +217,7 @@ class SACOracle:
         self.path = Path(path)
         summary_path = self.path / SUMMARY
         if not summary_path.exists():
-            raise FileNotFoundError(f"{summary_path} not found: train it with "
-                                    "`python -m icprl_lightning.families.metaworld_reach.sac`")
+            raise FileNotFoundError(f"{summary_path} not found: train it with `icprl oracle train`")
         self.summary = json.loads(summary_path.read_text())
         if self.summary.get("schema_version") != SCHEMA_VERSION:
             raise ValueError(f"{summary_path} has schema {self.summary.get('schema_version')}, expected "
@@ -279,7 +280,7 @@ class SACOracle:
 
 
 def main(args: Sequence[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(prog="icprl oracle train", description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--goals", choices=("train", "test", "all"), default="train")
     parser.add_argument("--goal-index", type=int, default=None, help="train on this one goal of the split (per-task)")
@@ -306,7 +307,7 @@ def main(args: Sequence[str] | None = None) -> Path:
     if ns.goal_index is not None:
         goals = goals[ns.goal_index : ns.goal_index + 1]
     argv = sys.argv[1:] if args is None else args
-    command = "python -m icprl_lightning.families.metaworld_reach.sac " + " ".join(argv)
+    command = "icprl oracle train " + " ".join(argv)
     out = train_sac_oracle(goals, ns.out, ns.timesteps, ns.seed, ns.checkpoint_every, ns.eval_episodes, ns.horizon,
                            overwrite=ns.overwrite, extra={"goal_split": ns.goals, "goal_index": ns.goal_index,
                                                           "family_seed": ns.family_seed, "command": command},
@@ -316,7 +317,7 @@ def main(args: Sequence[str] | None = None) -> Path:
                                                          ("gradient_steps", ns.gradient_steps),
                                                          ("batch_size", ns.batch_size),
                                                          ("gamma", ns.gamma)) if v is not None})
-    summary = SACOracle(out).summary
+    summary = SACTrainingRun(out).summary
     for name, c in summary["calibration"].items():
         print(f"{name}: step {c['step']}, normalized {c['achieved']:.2f} (target {c['target']}), "
               f"vs expert {c['achieved_vs_expert']:.2f}")

@@ -14,7 +14,7 @@ exporting an untrusted run never runs code from it:
   differences are the I-PRL labels' utility differences);
 
 as ``torch.save`` state dicts with SB3's own key names, an ``oracle.json`` (what each file is, the training
-run's summary, its command) and ``SHA256SUMS``. ``SACOracleWeights`` verifies every checksum, loads the
+run's summary, its command) and ``SHA256SUMS``. ``ExportedSAC`` verifies every checksum, loads the
 tensors with ``torch.load(weights_only=True)`` into ``SACActor`` / ``SACCritic`` (the same layers as SB3's
 ``MlpPolicy``: 256-256 ReLU MLPs; log-std clamped to [−20, 2]; a tanh-squashed Gaussian), and computes
 actions and Q̂ in NumPy-in, NumPy-out batches. Q̂ is divided by the run's ``reward_scale`` (latent-return
@@ -22,8 +22,7 @@ units). Tested against SB3's own networks on the same weights.
 
 Export (from a training run's directory; ``--targets`` are the behavior policies' normalized returns):
 
-    python -m icprl_lightning.families.metaworld_reach.sac_weights runs/sac_oracle/A \\
-        --out icprl_lightning/families/metaworld_reach/sac_oracle_v1
+    icprl oracle export runs/sac_oracle/A --out icprl_lightning/families/metaworld_reach/sac_oracle_v1
 """
 
 from __future__ import annotations
@@ -134,8 +133,7 @@ def _run_summary(run_dir: Path) -> dict[str, Any]:
 
     path = run_dir / SUMMARY
     if not path.is_file():
-        raise FileNotFoundError(f"{path} not found: train a run with `python -m icprl_lightning.families."
-                                "metaworld_reach.sac`")
+        raise FileNotFoundError(f"{path} not found: train a run with `icprl oracle train`")
     try:
         summary = json.loads(path.read_text())
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
@@ -162,7 +160,7 @@ def export_sac_oracle(run_dir: str | Path, out: str | Path, targets: Sequence[fl
     zips are read by ``sb3_policy_tensors`` only: nothing of the run is unpickled.
     """
     from icprl_lightning.families.metaworld_reach.sac import calibrate_checkpoints
-    from icprl_lightning.families.sb3_common import EvalRecord
+    from icprl_lightning.sb3 import EvalRecord
 
     run_dir = Path(run_dir)
     summary = _run_summary(run_dir)
@@ -208,7 +206,7 @@ def export_sac_oracle(run_dir: str | Path, out: str | Path, targets: Sequence[fl
     return out
 
 
-class SACOracleWeights:
+class ExportedSAC:
     """An exported SAC oracle directory, checksums verified, tensors loaded without unpickling objects.
 
     ``levels`` are the exported policies' normalized returns (1.0: the final policy π).
@@ -218,7 +216,7 @@ class SACOracleWeights:
         self.path = Path(path)
         if not (self.path / MANIFEST).is_file() or not (self.path / CHECKSUMS).is_file():
             raise FileNotFoundError(f"{self.path} is not an exported SAC oracle (no {MANIFEST} / {CHECKSUMS}); "
-                                    "export one with `python -m icprl_lightning.families.metaworld_reach.sac_weights`")
+                                    "export one with `icprl oracle export`")
         self._verify()
         self.manifest = json.loads((self.path / MANIFEST).read_text())
         if self.manifest.get("schema_version") != FORMAT_VERSION:
@@ -295,14 +293,14 @@ class SACOracleWeights:
 
 
 def main(args: Sequence[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_dir", type=Path, help="a training run of `python -m ...metaworld_reach.sac`")
+    parser = argparse.ArgumentParser(prog="icprl oracle export", description=__doc__.split("\n\n")[0])
+    parser.add_argument("run_dir", type=Path, help="a training run of `icprl oracle train`")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--targets", type=float, nargs="+", default=list(DEFAULT_TARGETS))
     parser.add_argument("--overwrite", action="store_true")
     ns = parser.parse_args(args)
     out = export_sac_oracle(ns.run_dir, ns.out, ns.targets, ns.overwrite)
-    oracle = SACOracleWeights(out)
+    oracle = ExportedSAC(out)
     for level in oracle.levels:
         p = oracle.policy_info(level)
         print(f"level {level}: step {p['step']}, eval return {p['eval_return']:.2f}, success {p['eval_success']:.2f}, "

@@ -1,6 +1,21 @@
-"""DarkRoom T-PRL results: deploy trained checkpoints on the held-out goals, write a JSON, a table and a figure.
+"""Question: On DarkRoom T-PRL (60 pairs per training goal), how do DP²T, ICRG and DIT on true rewards compare with the
+behavior policy, sampled and greedy, and how good are RewardGen's rewards?
 
-    python scripts/darkroom_tprl_results.py --dp2t runs/dp2t_darkroom_tprl/checkpoints/last.ckpt \
+Asked: 2026-11-22 (the first commit of this investigation, then scripts/darkroom_tprl_results.py).
+
+Answer (docs/RESULTS.md, DarkRoom T-PRL ("What we measure, against the paper's claims")):
+ICRG does not improve on the behavior policy (sampled: 18.2 / 35.2 / 64.6 against 17.5 / 37.9 / 75.3)
+and beats DP²T only at high quality (DP²T 28.6 / 46.2 / 49.0); DIT on true rewards improves on the behavior at
+low and medium (27.9 / 48.8 / 74.1), so the reward estimate is the gap: RewardGen orders held-out pairs well
+(0.80) but its per-step labels correlate only 0.18 / 0.31 / 0.41 with the latent reward. Greedy actions hurt
+both DIT policies at low and medium quality. The table is now `icprl reproduce darkroom_tprl`'s; the reward
+measures are `icprl analyze reward-quality` and `icrg-labels`.
+
+A one-off investigation, kept as it was run: not part of the package, untested, imported by nothing.
+
+DarkRoom T-PRL results: deploy trained checkpoints on the held-out goals, write a JSON, a table and a figure.
+
+    python experiments/darkroom_tprl_results.py --dp2t runs/dp2t_darkroom_tprl/checkpoints/last.ckpt \
         --icrg runs/icrg_darkroom/checkpoints/last.ckpt --dit runs/dit_darkroom/checkpoints/last.ckpt \
         --reward-gen runs/reward_gen_darkroom/checkpoints/best.ckpt --data-config configs/icrg_darkroom.yaml
 
@@ -23,14 +38,12 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 import torch
-import yaml
 
 from icprl_lightning import load_agent
 from icprl_lightning.checkpoints import load_module
 from icprl_lightning.data import PreferenceDataModule
-from icprl_lightning.data.config import datamodule_from_config
-from icprl_lightning.data.settings import RewardTrajectories, TrajectoryPairs
 from icprl_lightning.evaluation import rollout_in_context
+from icprl_lightning.evaluation.trajectory_data import tprl_datamodule
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.methods.reward_gen import RewardGenModule
 from icprl_lightning.metrics import mean_sem, per_task_mean
@@ -43,15 +56,8 @@ METHODS = {"dp2t": ("DP2T (T-PRL)", "trajectory_preference"), "icrg": ("ICRG", "
 
 
 def datamodule(config: Path, kind: str, root_dir: str | None) -> PreferenceDataModule:
-    """The config's T-PRL data as ``kind``: the same trajectories with labels, or with their true rewards."""
-    overrides = {"progress": False, "pairs": False, "query_labels": False}
-    if root_dir is not None:
-        overrides["root_dir"] = root_dir
-    dm = datamodule_from_config(config, **overrides)
-    setting_args = yaml.safe_load(config.read_text())["data"]["init_args"]["setting"].get("init_args", {})
-    setting = {"trajectory_preference": TrajectoryPairs, "reward_trajectory": RewardTrajectories}[kind]
-    dm = PreferenceDataModule(dm.family, setting(**setting_args), **overrides,
-                              **({} if root_dir is not None else {"root_dir": dm.root_dir}))
+    """The config's T-PRL data as ``kind``, prepared: the same trajectories with labels, or with their true rewards."""
+    dm = tprl_datamodule(config, kind, root_dir)
     dm.prepare_data()
     return dm
 

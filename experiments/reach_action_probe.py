@@ -1,4 +1,17 @@
-"""Where does a Reach policy's action point? A trained checkpoint's held-out actions against the goal direction.
+"""Question: Where does a Meta-World Reach policy's action point, and does an ICPO trained with aligned pairs read its
+context's length as a clock?
+
+Asked: 2026-12-02 (the first commit of this investigation, then scripts/reach_action_probe.py).
+
+Answer (docs/RESULTS.md, "Meta-World Reach I-PRL on the paper's recipe" (ICPO's clock)):
+Yes. With its whole context (150 comparisons, as deployed) the aligned-pairs ICPO ends farther from
+the goal than it started (final distance 0.31 / 0.38 / 0.46 from 0.28; mean y-action −0.02 / −0.09 / −0.22,
+the goals lie in +y); cut to its first 25 comparisons the same weights push towards +y (+0.73 to +0.98) and end
+at 0.12–0.14. ICPO with shuffled pairs (``pair_steps: shuffled``, now the default) ends at 0.04–0.07.
+
+A one-off investigation, kept as it was run: not part of the package, untested, imported by nothing.
+
+Where does a Reach policy's action point? A trained checkpoint's held-out actions against the goal direction.
 
 For a checkpoint trained on Meta-World Reach, deploys it on the held-out suites of its config (one episode
 per context, every context quality) and records, at every step, its action a and the privileged state (tcp,
@@ -18,7 +31,7 @@ length as a clock (ICPO trained with ``pair_steps: aligned``) acts differently w
 
 Evaluation-only: the probe reads the goal to score actions, the policy never sees it.
 
-    python scripts/reach_action_probe.py runs/.../checkpoints/last.ckpt --config configs/icpo_metaworld.yaml \\
+    python experiments/reach_action_probe.py runs/.../checkpoints/last.ckpt --config configs/icpo_metaworld.yaml \\
         [--oracle] [--context-steps 5] [--seed 0]
 """
 

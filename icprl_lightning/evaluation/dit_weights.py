@@ -1,7 +1,7 @@
 """What does DIT's weighted clone imitate on DarkRoom? (paper, appendix "Decision Importance Transformer", eqs.
 dit-advantage and dit-optimization: the policy clones the behavior's actions with weights exp(Â/η).)
 
-    python scripts/dit_weight_quality.py \
+    icprl analyze dit-weights \
         --ckpt runs/reproduce/darkroom_tprl/runs/DIT_true_rewards-seed0/version_0/checkpoints/last.ckpt \
         [--ckpt ...seed1...] [--json PATH]
 
@@ -11,7 +11,7 @@ An advantage-weighted clone can only beat the behavior if its weights put more m
 the behavior does. On DarkRoom an action is *good* when it moves the agent closer to the goal (Manhattan
 distance), or stays on it. On the validation trajectories of the training goals (never trained on),
 each trajectory of a pair scored with the other as context, exactly as in training (``swap_roles``),
-this prints per context quality:
+it measures per context quality:
 
 * ``good_fraction``: the behavior's share of good actions (what plain behavior cloning imitates);
 * ``weighted_good_fraction``: Σ w·good / Σ w with w = min(exp(Â/η), max_weight) and Â standardized over
@@ -31,8 +31,9 @@ seeds; each measure is reported as mean ± sem over them.
 from __future__ import annotations
 
 import argparse
-import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -43,9 +44,11 @@ from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.darkroom.env import step_reward, transition
+from icprl_lightning.io import write_json_atomic
 from icprl_lightning.methods.dit import DITModule, swap_roles
 from icprl_lightning.methods.losses import return_to_go_advantages, standardized_advantages, td_advantages
 from icprl_lightning.metrics import mean_sem_or_none
+from icprl_lightning.samples import Samples
 
 
 def good_actions(states: np.ndarray, actions: np.ndarray, goals: np.ndarray, size: int,
@@ -72,21 +75,27 @@ def auc(scores: np.ndarray, positive: np.ndarray) -> float | None:
     return float((ranks[positive].sum() - n_pos * (n_pos + 1) / 2) / (n_pos * n_neg))
 
 
-def validation_batch(dm) -> tuple[dict[str, torch.Tensor], dict[str, np.ndarray]]:
+def validation_batch(dm) -> tuple[Samples, dict[str, np.ndarray]]:
     """Every validation row as one batch, as the run's loaders build them (ICRG: another pair of the task
     conditions RewardGen, drawn with a fixed seed), and the stored arrays."""
     val = dm.load()["val"]
     data = ContextBatches(val, dm.setting.batch_fields(), dm.trajectories_per_task[1], dm.pairs, False,
-                          dm.setting.pair_fields, tasks=True)
+                          dm.setting.pair_fields, tasks=True, kind=dm.context_kind)
     torch.manual_seed(0)
     return data[np.arange(len(data))], val
 
 
-def measure(checkpoint: Path) -> dict[str, dict[str, float]]:
+def measure(checkpoint: str | Path) -> dict[str, dict[str, float]]:
+    """Every measure of one DIT or ICRG checkpoint, per quality present in its run's validation rows."""
+    checkpoint = Path(checkpoint)
     module = load_module(checkpoint).eval()
     if not isinstance(module, DITModule):
         raise ValueError(f"{checkpoint} is a {type(module).__name__}, not a DIT or ICRG checkpoint")
-    dm = datamodule_from_config(checkpoint.parent.parent / "config.yaml")
+    config = checkpoint.parent.parent / "config.yaml"
+    if not config.is_file():
+        raise FileNotFoundError(f"{checkpoint}: no config.yaml in its run directory ({config.parent}); this measure "
+                                "reads the run's own data")
+    dm = datamodule_from_config(config)
     if not isinstance(dm.family, DarkRoomFamily):
         raise ValueError(f"{checkpoint}: this measure is DarkRoom's (good = closer to the goal); "
                          f"the run's family is {type(dm.family).__name__}")
@@ -123,31 +132,37 @@ def measure(checkpoint: Path) -> dict[str, dict[str, float]]:
     return out
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+MEASURES = ("good_fraction", "weighted_good_fraction", "td_weighted_good_fraction", "rtg_weighted_good_fraction",
+            "policy_good_mass", "auc", "td_auc", "rtg_auc")
+
+
+def dit_weights(checkpoints: Sequence[str | Path]) -> dict[str, Any]:
+    """``measure`` of every checkpoint and, per quality and measure, the mean ± sem over them."""
+    per_ckpt = {str(c): measure(c) for c in checkpoints}
+    summary: dict[str, dict[str, tuple[float | None, float | None]]] = {}
+    for q in QUALITIES:
+        for m in MEASURES:
+            values = [r[q][m] for r in per_ckpt.values() if r.get(q, {}).get(m) is not None]
+            summary.setdefault(q, {})[m] = mean_sem_or_none(values) if values else (None, None)
+    return {"checkpoints": per_ckpt, "summary": summary}
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="icprl analyze dit-weights", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ckpt", type=Path, action="append", required=True,
                         help="a DIT or ICRG checkpoint (repeat: seeds)")
     parser.add_argument("--json", type=Path, help="also write the per-checkpoint measures and their summary")
-    args = parser.parse_args()
-    per_ckpt = {str(c): measure(c) for c in args.ckpt}
-    measures = ("good_fraction", "weighted_good_fraction", "td_weighted_good_fraction", "rtg_weighted_good_fraction",
-                "policy_good_mass", "auc", "td_auc", "rtg_auc")
-    summary = {}
-    for q in QUALITIES:
-        for m in measures:
-            values = [r[q][m] for r in per_ckpt.values() if r.get(q, {}).get(m) is not None]
-            summary.setdefault(q, {})[m] = mean_sem_or_none(values) if values else (None, None)
-    print(f"| measure ({len(per_ckpt)} checkpoints, mean ± sem) | " + " | ".join(QUALITIES) + " |")
+    args = parser.parse_args(argv)
+    out = dit_weights(args.ckpt)
+    print(f"| measure ({len(out['checkpoints'])} checkpoints, mean ± sem) | " + " | ".join(QUALITIES) + " |")
     print("|---|" + "---|" * len(QUALITIES))
-    for m in measures:
+    for m in MEASURES:
         cells = []
         for q in QUALITIES:
-            mean, sem = summary[q][m]
+            mean, sem = out["summary"][q][m]
             cells.append("–" if mean is None else f"{mean:.3f}" + (f" ± {sem:.3f}" if sem is not None else ""))
         print(f"| {m} | " + " | ".join(cells) + " |")
-    if args.json:
-        args.json.write_text(json.dumps({"checkpoints": per_ckpt, "summary": summary}, indent=2) + "\n")
-
-
-if __name__ == "__main__":
-    main()
+    if args.json is not None:
+        write_json_atomic(args.json, out)
+    return out

@@ -1,8 +1,7 @@
-r"""RewardGen's reward quality on the held-out tasks, per context quality: write a JSON, print a markdown table.
+r"""RewardGen's reward quality on the held-out tasks, per context quality (``icprl analyze reward-quality``).
 
-    python scripts/reward_gen_quality.py --data-config configs/reward_gen_darkroom.yaml \
-        --ckpt runs/reward_gen_darkroom-seed0/checkpoints/best.ckpt [--ckpt ...seed1...] [--json PATH]
-    python scripts/reward_gen_quality.py --data-config configs/reward_gen_metaworld.yaml --ckpt ... --ckpt ...
+    icprl analyze reward-quality --data-config configs/reward_gen_darkroom.yaml \
+        --ckpt runs/icprl/<seed 0>/checkpoints/best.ckpt [--ckpt <seed 1> ...] [--json quality.json]
 
 Several ``--ckpt`` are training seeds of one RewardGen configuration (one ``pair_source``); each measure is
 averaged over the held-out pairs of a checkpoint, then reported as mean ± sem over the checkpoints. The
@@ -18,7 +17,8 @@ three measures of R_ψ(s, a | ξ⁺, ξ⁻) (paper section 5.3, eq. (L_R^T)), pe
 * ``reward_correlation``: Pearson correlation, pooled over steps and tasks, of R_ψ's per-step labels r̂
   with the latent per-step rewards on the held-out unlabeled behavior trajectories, each labeled with its
   evaluation pair as context (``InContextRewardModel.label``, as ICRG deploys; read by the same rule).
-  The latent rewards come from the ``RewardTrajectories`` dataset over the same trajectories.
+  The latent rewards come from the ``RewardTrajectories`` dataset over the same trajectories
+  (``trajectory_data``).
 
 Chance accuracy is 0.5; tied returns carry coin-flip labels, so the ceiling is the manifest's label
 agreement (``eval_label_statistics`` in the JSON).
@@ -27,18 +27,21 @@ agreement (``eval_label_statistics`` in the JSON).
 from __future__ import annotations
 
 import argparse
-import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
-from darkroom_tprl_results import datamodule  # scripts/: the same trajectories with labels or true rewards
 
 from icprl_lightning.checkpoints import load_module
-from icprl_lightning.contexts import TrajectoryPreferenceContext, context_from_batch
+from icprl_lightning.contexts import TrajectoryPreferenceContext
+from icprl_lightning.evaluation.trajectory_data import tprl_datamodule
 from icprl_lightning.families.base import QUALITIES
+from icprl_lightning.io import write_json_atomic
 from icprl_lightning.methods.reward_gen import RewardGenModule
 from icprl_lightning.metrics import mean_sem_or_none
+from icprl_lightning.samples import ContextSamples
 
 MEASURES = {"other_pair_accuracy": "accuracy, other pair (fair)", "own_pair_accuracy": "accuracy, own pair",
             "reward_correlation": "corr(r̂, latent r)"}
@@ -78,27 +81,66 @@ def label_correlation(model: RewardGenModule, context: TrajectoryPreferenceConte
     return float(np.corrcoef(labels.flatten().numpy(), rewards.flatten().numpy())[0, 1])
 
 
-def evaluate(model: RewardGenModule, pairs: dict[str, dict[str, torch.Tensor]],
+def evaluate(model: RewardGenModule, pairs: dict[str, ContextSamples],
              suites: dict[str, TrajectoryPreferenceContext], rewards: dict[str, torch.Tensor]
              ) -> dict[str, dict[str, float]]:
+    """The three measures of one checkpoint, per quality."""
     out = {}
     for q in QUALITIES:
-        scored = context_from_batch("trajectory_preference", pairs[q])
-        other = context_from_batch("trajectory_preference", pairs[q], prefix="pair_")
+        scored, other = pairs[q].context, pairs[q].pair
         out[q] = {"other_pair_accuracy": pair_accuracy(model, other, scored),
                   "own_pair_accuracy": pair_accuracy(model, scored, scored),
                   "reward_correlation": label_correlation(model, suites[q], rewards[q])}
     return out
 
 
-def load_reward_gen(path: Path) -> RewardGenModule:
-    model = load_module(path)  # weights_only, allow-listed class, checksum verified
+def load_reward_gen(path: str | Path) -> RewardGenModule:
+    """A RewardGen checkpoint, read as untrusted (allow-listed class, checksum verified)."""
+    model = load_module(path)
     if not isinstance(model, RewardGenModule):
         raise ValueError(f"--ckpt {path} is a {type(model).__name__} checkpoint, not RewardGen's")
     return model.eval()
 
 
+def reward_quality(data_config: str | Path, checkpoints: Sequence[str | Path], data_root: str | None = None
+                   ) -> dict[str, Any]:
+    """The measures of every checkpoint on ``data_config``'s held-out pairs and their mean ± sem over checkpoints."""
+    models = [(str(path), load_reward_gen(path)) for path in checkpoints]
+    sources = {m.hparams.pair_source for _, m in models}
+    if len(sources) != 1:
+        raise ValueError(f"--ckpt: the checkpoints mix pair_source values {sorted(sources)}; pass the training "
+                         "seeds of one configuration per run")
+    pair_source = sources.pop()
+    labeled = tprl_datamodule(data_config, "trajectory_preference", data_root)
+    if labeled.setting.eval_contexts_per_task < 2:
+        raise ValueError(f"--data-config {data_config}: setting eval_contexts_per_task must be >= 2 for another pair "
+                         f"of each held-out task, got {labeled.setting.eval_contexts_per_task}")
+    rewarded = tprl_datamodule(data_config, "reward_trajectory", data_root)
+    labeled.prepare_data()
+    rewarded.prepare_data()
+    suites = {s.quality: s.context for s in labeled.evaluation_suites()}
+    rewards = {}
+    for oracle in rewarded.evaluation_suites():
+        if not torch.equal(oracle.context.states, suites[oracle.quality].behavior_states):
+            raise ValueError(f"--data-config {data_config}: the reward and preference datasets' {oracle.quality} "
+                             "behavior trajectories differ (regenerate both from one config)")
+        rewards[oracle.quality] = oracle.context.rewards
+    pairs = labeled.heldout_pairs()
+    per_checkpoint = [{"checkpoint": path, **evaluate(model, pairs, suites, rewards)} for path, model in models]
+    summary: dict[str, dict[str, dict[str, float | None]]] = {}
+    for q in QUALITIES:
+        summary[q] = {}
+        for k in MEASURES:
+            mean, sem = mean_sem_or_none([r[q][k] for r in per_checkpoint])
+            summary[q][k] = {"mean": mean, "sem": sem}
+    info = labeled.load().manifest["info"]
+    return {"data_config": str(data_config), "pair_source": pair_source, "causal": models[0][1].reward.causal,
+            "own_pair_reading": own_pair_note(pair_source), "checkpoints": [path for path, _ in models],
+            "mean": summary, "per_checkpoint": per_checkpoint, "eval_label_statistics": info["eval_statistics"]}
+
+
 def table(summary: dict[str, dict[str, dict[str, float | None]]]) -> str:
+    """The mean ± sem of each measure, one row per quality (markdown)."""
     def cell(m: dict[str, float | None]) -> str:
         return f"{m['mean']:.3f}" + ("" if m["sem"] is None else f" ± {m['sem']:.3f}")
 
@@ -107,55 +149,23 @@ def table(summary: dict[str, dict[str, dict[str, float | None]]]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="icprl analyze reward-quality", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ckpt", type=Path, nargs="+", action="extend", required=True,
                         help="RewardGen checkpoint(s) of one configuration (repeat or list: training seeds)")
-    parser.add_argument("--data-config", type=Path, default=Path("configs/reward_gen_darkroom.yaml"),
+    parser.add_argument("--data-config", type=Path, required=True,
                         help="the checkpoints' T-PRL data config (its held-out evaluation splits are scored)")
     parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
-    parser.add_argument("--json", type=Path, default=Path("docs/results/reward_gen_quality.json"))
+    parser.add_argument("--json", type=Path, help="also write the measures here")
     args = parser.parse_args(argv)
-    models = [(str(path), load_reward_gen(path)) for path in args.ckpt]
-    sources = {m.hparams.pair_source for _, m in models}
-    if len(sources) != 1:
-        parser.error(f"--ckpt: the checkpoints mix pair_source values {sorted(sources)}; pass the training seeds "
-                     "of one configuration per run")
-    pair_source = sources.pop()
-    dms = {kind: datamodule(args.data_config, kind, args.data_root)
-           for kind in ("trajectory_preference", "reward_trajectory")}
-    labeled = dms["trajectory_preference"]
-    if labeled.setting.eval_contexts_per_task < 2:
-        parser.error(f"{args.data_config}: setting eval_contexts_per_task must be >= 2 for another pair of each "
-                     f"held-out task, got {labeled.setting.eval_contexts_per_task}")
-    suites = {s.quality: s.context for s in labeled.evaluation_suites()}
-    rewards = {}
-    for oracle in dms["reward_trajectory"].evaluation_suites():
-        if not torch.equal(oracle.context.states, suites[oracle.quality].behavior_states):
-            raise ValueError(f"{args.data_config}: the reward and preference datasets' {oracle.quality} behavior "
-                             "trajectories differ (regenerate both from one config)")
-        rewards[oracle.quality] = oracle.context.rewards
-    pairs = labeled.heldout_pairs()
-    per_checkpoint = [{"checkpoint": path, **evaluate(model, pairs, suites, rewards)} for path, model in models]
-    summary = {}
-    for q in QUALITIES:
-        summary[q] = {}
-        for k in MEASURES:
-            mean, sem = mean_sem_or_none([r[q][k] for r in per_checkpoint])
-            summary[q][k] = {"mean": mean, "sem": sem}
-    info = labeled.load().manifest["info"]
-    out = {"data_config": str(args.data_config), "pair_source": pair_source,
-           "causal": models[0][1].reward.causal, "own_pair_reading": own_pair_note(pair_source),
-           "checkpoints": [path for path, _ in models], "mean": summary, "per_checkpoint": per_checkpoint,
-           "eval_label_statistics": info["eval_statistics"]}
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(out, indent=2))
-    print(f"RewardGen (pair_source={pair_source}) on held-out tasks, mean ± sem over {len(models)} checkpoint(s)")
-    print(table(summary))
+    out = reward_quality(args.data_config, args.ckpt, args.data_root)
+    if args.json is not None:
+        write_json_atomic(args.json, out)
+    print(f"RewardGen (pair_source={out['pair_source']}) on held-out tasks, mean ± sem over "
+          f"{len(out['checkpoints'])} checkpoint(s)")
+    print(table(out["mean"]))
     print(f"own pair read with: {out['own_pair_reading']}")
-    print(f"wrote {args.json}")
+    if args.json is not None:
+        print(f"wrote {args.json}")
     return out
-
-
-if __name__ == "__main__":
-    main()

@@ -1,6 +1,6 @@
 r"""What one T-PRL pair can tell about DarkRoom's rewards: the Bayes-optimal R(s, a | ξ_a, ξ_b, y), beside RewardGen.
 
-    python scripts/reward_gen_bayes.py --data-config <RewardGen run>/config.yaml [--json PATH]
+    icprl analyze reward-bayes --data-config <RewardGen run>/config.yaml [--json PATH]
 
 RewardGen (paper section 5.3, eq. (L_R^T)) infers per-step rewards r̂(s, a | D^T) from one labeled pair. How
 good can such rewards be? On DarkRoom the answer is computable: the task is the goal cell g, r_g(s, a) = 1
@@ -15,11 +15,11 @@ action toward g with probability p, the quality's calibrated mixing, else a unif
     p(g | D^T) ∝ P(y | g) · Π_h π_g(a^a_h | s^a_h) · Π_h π_g(a^b_h | s^b_h),
 
 with a uniform prior over all grid cells (the held-out goals are not in the training set, so no prior
-learned from training goals could put mass on them). The script gives the posterior from each evidence
+learned from training goals could put mass on them). ``posteriors`` gives the posterior from each evidence
 (``EVIDENCE``): the label alone, the trajectories alone, and the whole pair, the exact posterior. The
 Bayes reward is its expectation, r̄(s, a | D^T) = p(g = s' | D^T) for the cell s' the move lands on; from
 the whole pair, no reward model conditioned on the same pair ranks transitions better on average. It is
-measured with ``scripts/reward_gen_quality.py``'s two fair measures, on the same held-out data:
+measured with ``reward_quality``'s two fair measures (``icprl analyze reward-quality``), on the same held-out data:
 
 * ``other_pair_accuracy``: the posterior predictive's winner of another pair of the task,
   argmax over y of Σ_g p(g | D^T) P(y | g), against that pair's label;
@@ -35,19 +35,21 @@ does. It bounds what a better RewardGen objective can reach with one pair as con
 from __future__ import annotations
 
 import argparse
-import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
-from darkroom_tprl_results import datamodule  # scripts/: the same trajectories with labels or true rewards
-from reward_gen_quality import MEASURES
 
-from icprl_lightning.contexts import TrajectoryPreferenceContext, context_from_batch
+from icprl_lightning.contexts import TrajectoryPreferenceContext
+from icprl_lightning.evaluation.reward_quality import MEASURES
+from icprl_lightning.evaluation.trajectory_data import tprl_datamodule
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.families.darkroom.env import N_ACTIONS, transition
 from icprl_lightning.families.darkroom.family import DarkRoomFamily
 from icprl_lightning.families.darkroom.oracle import optimal_actions
+from icprl_lightning.io import write_json_atomic
 
 # what the posterior conditions on: the label alone, the two trajectories alone (the behavior policy is
 # goal-directed, so its moves point at the goal), or the whole pair
@@ -68,6 +70,7 @@ def goal_returns(cells: np.ndarray, n_cells: int) -> np.ndarray:
 
 
 def log_sigmoid(x: np.ndarray) -> np.ndarray:
+    """log σ(x), stable for large |x|."""
     return -np.logaddexp(0.0, -x)
 
 
@@ -96,6 +99,7 @@ def label_loglik(context: TrajectoryPreferenceContext, size: int, temperature: f
 
 
 def normalize(logp: np.ndarray) -> np.ndarray:
+    """Rows of log-weights [B, G] -> probabilities summing to 1."""
     p = np.exp(logp - logp.max(1, keepdims=True))
     return p / p.sum(1, keepdims=True)
 
@@ -125,57 +129,65 @@ def other_pair_accuracy(post: np.ndarray, scored: TrajectoryPreferenceContext, s
 
 
 def goal_cells(family: DarkRoomFamily, task_index: np.ndarray) -> np.ndarray:
+    """The held-out goal cell index y·size + x of each context."""
     goals = family.test_goals[task_index]
     return goals[:, 1] * family.size + goals[:, 0]
 
 
-def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data-config", type=Path, default=Path("configs/reward_gen_darkroom.yaml"),
-                        help="a DarkRoom T-PRL data config (a RewardGen run's config.yaml: the same held-out data)")
-    parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
-    parser.add_argument("--json", type=Path, default=Path("docs/results/reward_gen_bayes_darkroom.json"))
-    args = parser.parse_args(argv)
-    dms = {kind: datamodule(args.data_config, kind, args.data_root)
-           for kind in ("trajectory_preference", "reward_trajectory")}
-    labeled = dms["trajectory_preference"]
+def reward_bayes(data_config: str | Path, data_root: str | None = None) -> dict[str, Any]:
+    """The Bayes reward's measures from each evidence of ``EVIDENCE``, per quality, on ``data_config``'s held-out
+    data (a DarkRoom T-PRL config labeled by the Bradley–Terry annotator)."""
+    labeled = tprl_datamodule(data_config, "trajectory_preference", data_root)
     family = labeled.family
     if not isinstance(family, DarkRoomFamily):
-        parser.error(f"{args.data_config}: the Bayes reward is computed for DarkRoom only, got {type(family).__name__}")
+        raise ValueError(f"--data-config {data_config}: the Bayes reward is computed for DarkRoom only, got "
+                         f"{type(family).__name__}")
     temperature = labeled.setting.bt_temperature
     if temperature is None:
-        parser.error(f"{args.data_config}: the labels must come from the Bradley–Terry annotator (bt_temperature)")
+        raise ValueError(f"--data-config {data_config}: the labels must come from the Bradley–Terry annotator "
+                         "(bt_temperature)")
+    rewarded = tprl_datamodule(data_config, "reward_trajectory", data_root)
+    labeled.prepare_data()
+    rewarded.prepare_data()
     mixing = {q: c["mixing"] for q, c in labeled.load().manifest["info"]["calibration"].items()}
     suites = {s.quality: s for s in labeled.evaluation_suites()}
-    rewards = {s.quality: s.context.rewards for s in dms["reward_trajectory"].evaluation_suites()}
+    rewards = {s.quality: s.context.rewards for s in rewarded.evaluation_suites()}
     pairs = labeled.heldout_pairs()
-    out = {e: {} for e in EVIDENCE}
+    out: dict[str, dict[str, dict[str, float]]] = {e: {} for e in EVIDENCE}
     for q in QUALITIES:
         context = suites[q].context
         post = posteriors(context, family.size, temperature, mixing[q])
         goals = goal_cells(family, np.asarray(suites[q].task_index))
-        scored = context_from_batch("trajectory_preference", pairs[q])
-        post_other = posteriors(context_from_batch("trajectory_preference", pairs[q], prefix="pair_"), family.size,
-                                temperature, mixing[q])
+        scored = pairs[q].context
+        post_other = posteriors(pairs[q].pair, family.size, temperature, mixing[q])
         for e in EVIDENCE:
             r_bar = bayes_rewards(post[e], context.behavior_states, context.behavior_actions, family.size)
             out[e][q] = {
                 "other_pair_accuracy": other_pair_accuracy(post_other[e], scored, family.size, temperature),
                 "reward_correlation": float(np.corrcoef(r_bar.ravel(), rewards[q].numpy().ravel())[0, 1]),
                 "posterior_on_goal": float(post[e][np.arange(len(goals)), goals].mean())}
-    result = {"data_config": str(args.data_config), "prior": f"uniform over the {family.size ** 2} cells",
-              "temperature": temperature, "mixing": mixing, "evidence": EVIDENCE, "bayes": out}
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=2))
+    return {"data_config": str(data_config), "prior": f"uniform over the {family.size ** 2} cells",
+            "temperature": temperature, "mixing": mixing, "evidence": EVIDENCE, "bayes": out}
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="icprl analyze reward-bayes", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data-config", type=Path, required=True,
+                        help="a DarkRoom T-PRL data config (a RewardGen run's config.yaml: the same held-out data)")
+    parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
+    parser.add_argument("--json", type=Path, help="also write the measures here")
+    args = parser.parse_args(argv)
+    result = reward_bayes(args.data_config, args.data_root)
+    if args.json is not None:
+        write_json_atomic(args.json, result)
+    out = result["bayes"]
     keys = ("other_pair_accuracy", "reward_correlation", "posterior_on_goal")
     names = {**MEASURES, "posterior_on_goal": "p(true goal)"}
     print(f"Bayes-optimal reward from one pair on the held-out goals (prior {result['prior']}); low / medium / high")
     print("| posterior from | " + " | ".join(names[k] for k in keys) + " |\n|---|" + "---|" * len(keys))
     for e, what in EVIDENCE.items():
         print(f"| {what} | " + " | ".join(" / ".join(f"{out[e][q][k]:.2f}" for q in QUALITIES) for k in keys) + " |")
-    print(f"wrote {args.json}")
+    if args.json is not None:
+        print(f"wrote {args.json}")
     return result
-
-
-if __name__ == "__main__":
-    main()

@@ -1,11 +1,24 @@
-"""Are an I-PRL dataset's preferred and rejected actions apart on average, or only state by state?
+"""Question: Are the SAC recipe's preferred and rejected I-PRL actions apart on average, or only state by state?
+
+Asked: 2026-12-02 (the first commit of this investigation, then scripts/ipref_action_balance.py).
+
+Answer (docs/RESULTS.md, "Meta-World Reach I-PRL on the paper's recipe" (ICPO's clock)):
+State by state, and the states split in two: 68% of the training steps have the hand within 0.08 of the
+goal. Far from it the preferred action points at the goal (mean y-component 0.58 against the rejected 0.16);
+near it, where the 80% checkpoint has overshot in +y, the preferred action pulls back (0.15 vs 0.38). On the
+scripted recipe near-goal pairs do not differ on average (0.03 vs 0.03). A model that reads the context as
+"late in the episode" therefore pulls back from its first step.
+
+A one-off investigation, kept as it was run: not part of the package, untested, imported by nothing.
+
+Are an I-PRL dataset's preferred and rejected actions apart on average, or only state by state?
 
 For a stored continuous-action I-PRL dataset (``states``, ``actions``, ``alt_actions``, ``preferred``), prints
 per action dimension the mean preferred action, the mean rejected action, their difference and the mean
 |preferred − rejected| of a pair. A rejected side biased in one direction (a difference of means comparable
 to the per-pair difference) would teach a pull-and-push loss such as ICPO's a state-independent direction.
 
-    python scripts/ipref_action_balance.py data/metaworld_reach_sac-step_preference-<hash> [--split train]
+    python experiments/ipref_action_balance.py data/metaworld_reach_sac-step_preference-<hash> [--split train]
 
 ``--near R`` (Meta-World Reach datasets: states[..., 0:3] is the hand, ``tasks/train_goals.npy`` the goals) prints
 the same split into the steps whose hand lies within R of the goal and the others, with each group's share: a

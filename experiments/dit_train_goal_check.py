@@ -1,6 +1,18 @@
-"""Does DIT read the task from its context on the goals it was trained on? (issue 17, point 3's Reach half)
+"""Question: Does DIT read the task from its reward context on the goals it was trained on (Meta-World Reach),
+where on held-out goals another goal's context gives the same return?
 
-    python scripts/dit_train_goal_check.py --seeds 0 1 --greedy \
+Asked: 2026-12-05 (the first commit of this investigation, then scripts/dit_train_goal_check.py).
+
+Answer (docs/RESULTS.md, "Does DIT read its context on the goals it trained on?"):
+Barely. On the training goals its own context adds 0.06 normalized return over another goal's (0.56 vs
+0.50, every seed) and success stays at 0.12; on the held-out goals the two are level. DIT does not learn to
+infer the goal from a reward context at all; it is not that 45 training goals are too few.
+
+A one-off investigation, kept as it was run: not part of the package, untested, imported by nothing.
+
+Does DIT read the task from its context on the goals it was trained on? (issue 17, point 3's Reach half)
+
+    python experiments/dit_train_goal_check.py --seeds 0 1 --greedy \
         --run CONFIG:CHECKPOINT[,CHECKPOINT...] --out docs/results/dit_train_goal_check_reach
 
 On held-out goals DIT on Reach returns the same with another goal's context as with its own (docs/RESULTS.md):

@@ -1,4 +1,16 @@
-"""Do the SAC critic's I-PRL labels order actions as the task does? (issue 13, point 2)
+"""Question: Do the SAC critic's I-PRL labels order actions as the task does?
+
+Asked: 2026-12-02 (the first commit of this investigation, then scripts/sac_label_truth.py).
+
+Answer (docs/RESULTS.md, "Meta-World Reach I-PRL on the paper's recipe: the SAC oracle"):
+Mostly. On 150 (20%, 80%) action pairs of training goals the critic's sign agrees with the MuJoCo ground
+truth on 83% of the pairs (correlation of the gaps 0.84), the scripted recipe's surrogate on 92%; a third of
+the critic's gap (median 32%) comes from the gripper action a[3], which does not move the TCP. With T = 0.01
+the labels agree with the true ordering on ≈ 70% of the pairs, against ≈ 80% in the scripted recipe.
+
+A one-off investigation, kept as it was run: not part of the package, untested, imported by nothing.
+
+Do the SAC critic's I-PRL labels order actions as the task does? (issue 13, point 2)
 
 The paper's Meta-World labels compare Q̂(s, a) − Q̂(s, a') of a converged SAC's critic. Their agreement with
 Q̂ itself is what ``StepPreferences`` reports; this script measures what matters for a learner: how often
@@ -10,7 +22,7 @@ States: episodes on training goals where each step follows the 80%-checkpoint's 
 action (a fair coin), as the I-PRL data's states do; at every ``every``-th step the pair (a ~ π_20%,
 a' ~ π_80%) is scored by both.
 
-    python scripts/sac_label_truth.py --episodes 10 --every 10
+    python experiments/sac_label_truth.py --episodes 10 --every 10
 """
 
 from __future__ import annotations
@@ -24,11 +36,11 @@ from icprl_lightning.families.metaworld_reach import ReachTaskFamily
 from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
 from icprl_lightning.families.metaworld_reach.oracle import expert_q_values, simulated_q_values
 from icprl_lightning.families.metaworld_reach.sac_family import DEFAULT_ORACLE
-from icprl_lightning.families.metaworld_reach.sac_weights import SACOracleWeights
+from icprl_lightning.families.metaworld_reach.sac_weights import ExportedSAC
 
 
 def measure(episodes: int, every: int, seed: int, oracle_dir=DEFAULT_ORACLE) -> dict:
-    weights = SACOracleWeights(oracle_dir)
+    weights = ExportedSAC(oracle_dir)
     goals = ReachTaskFamily(seed=0).train_goals
     env = ReachGoalEnv(goals, goal_visible=True)
     rng = np.random.default_rng(seed)

@@ -1,10 +1,22 @@
-"""Data-scale curves of Meta-World Reach I-PRL (issue 13): normalized held-out return of DPT, DP²T and ICPO
+"""Question: Does more pretraining data per goal change the Meta-World Reach I-PRL ordering of DPT, DP²T and ICPO?
+
+Asked: 2026-12-02 (the first commit of this investigation, then scripts/reach_scale_curves.py).
+
+Answer (docs/RESULTS.md, "Twice the data" and "Four times the data" (Meta-World Reach I-PRL)):
+No. From 20 to 40 to 80 contexts per goal no row moves by more than 0.05 normalized return: ICPO stays
+ahead at low and medium quality (0.76 → 0.77 → 0.73 and 0.75 → 0.78 → 0.73, against DP²T's 0.64 → 0.62 → 0.62
+and DPT's 0.58 → 0.60 → 0.63 at low), and the three are level near 0.93 at high. The curves are
+docs/results/metaworld_scale.{png,md}.
+
+A one-off investigation, kept as it was run: not part of the package, untested, imported by nothing.
+
+Data-scale curves of Meta-World Reach I-PRL (issue 13): normalized held-out return of DPT, DP²T and ICPO
 against contexts per training goal, one panel per recipe and context quality, from the tables
 ``icprl reproduce metaworld_<recipe>_x<k>`` wrote (``docs/results/metaworld_<recipe>_x<k>.json``, greedy).
 
-    python scripts/reach_scale_curves.py                      # every table present
-    python scripts/reach_scale_curves.py --out docs/results/metaworld_scale
-    python scripts/reach_scale_curves.py --rows sac:1=docs/results/metaworld_sac_x1_icpo.json:ICPO
+    python experiments/reach_scale_curves.py                      # every table present
+    python experiments/reach_scale_curves.py --out docs/results/metaworld_scale
+    python experiments/reach_scale_curves.py --rows sac:1=docs/results/metaworld_sac_x1_icpo.json:ICPO
 
 ``--rows RECIPE:K=FILE:METHOD[,METHOD]`` takes those methods' rows and diagnostics from another evaluation's
 JSON (``icprl evaluate --out``) instead of the table's, for a method refitted after its table was made; the
@@ -22,7 +34,12 @@ import json
 from pathlib import Path
 
 from icprl_lightning.families.base import QUALITIES
-from icprl_lightning.reproduce import REACH_CONTEXTS_PER_GOAL, REACH_RECIPES, REACH_SCALES, RECIPE_TITLES
+
+# the metaworld_<recipe>_x<k> experiment files (configs/experiment/): recipes, scales and contexts per goal at x1
+RECIPE_TITLES = {"scripted": "scripted-expert recipe", "sac": "the paper's recipe (SAC oracle)"}
+REACH_RECIPES = tuple(RECIPE_TITLES)
+REACH_SCALES = (1, 2, 4, 8)
+REACH_CONTEXTS_PER_GOAL = 20
 
 METHODS = ("DPT", "DP2T", "ICPO")
 DIAGNOSED = ("DP2T", "ICPO")

@@ -1,6 +1,6 @@
 r"""ICRG's reward labels against the latent reward: in pretraining (what DIT learns from) and at deployment.
 
-    python scripts/icrg_label_quality.py --config <icrg run>/config.yaml \
+    icprl analyze icrg-labels --config <icrg run>/config.yaml \
         --ckpt <in-sample ICRG>/checkpoints/last.ckpt --ckpt <cross-fitted ICRG>/checkpoints/last.ckpt
 
 The relabeling stage of ICRG (paper section 5.3) in numbers. For each ICRG checkpoint:
@@ -13,33 +13,38 @@ The relabeling stage of ICRG (paper section 5.3) in numbers. For each ICRG check
   per context quality (``ICRGAgent.reset``).
 
 Each is the Pearson correlation, pooled over steps and trajectories, of the standardized labels r̂ with the
-latent per-step rewards of the same trajectories (the ``RewardTrajectories`` dataset over the same bytes).
-In-sample labels on the training goals beside deployment labels on unseen goals show how much sharper
-the labels DIT learned from were than those it acts on; cross-fitted labels should sit closer to the
-deployment ones.
+latent per-step rewards of the same trajectories (the ``RewardTrajectories`` dataset over the same bytes,
+``trajectory_data``). In-sample labels on the training goals beside deployment labels on unseen goals show
+how much sharper the labels DIT learned from were than those it acts on; cross-fitted labels should sit
+closer to the deployment ones.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
-from darkroom_tprl_results import datamodule  # scripts/: the same trajectories with labels or true rewards
 
-from icprl_lightning import load_agent
 from icprl_lightning.checkpoints import load_module
+from icprl_lightning.data import PreferenceDataModule
+from icprl_lightning.deploy import load_agent
+from icprl_lightning.evaluation.trajectory_data import tprl_datamodule
+from icprl_lightning.io import write_json_atomic
 from icprl_lightning.methods.icrg import ICRGModule
 
 
 def correlation(labels: torch.Tensor, rewards: torch.Tensor) -> float:
+    """Pearson correlation of two equally shaped tensors, pooled over every entry."""
     return float(np.corrcoef(labels.flatten().numpy(), rewards.flatten().numpy())[0, 1])
 
 
 @torch.no_grad()
-def training_labels(model: ICRGModule, pairs, rewards, rows: int, seed: int) -> float:
+def training_labels(model: ICRGModule, pairs: PreferenceDataModule, rewards: PreferenceDataModule, rows: int,
+                    seed: int) -> float:
     """Correlation of the labels ICRG trains on (``rows`` training rows) with their latent rewards."""
     train = pairs.train_dataloader().dataset  # ContextBatches: a whole batch per list of rows
     generator = torch.Generator().manual_seed(seed)
@@ -47,7 +52,7 @@ def training_labels(model: ICRGModule, pairs, rewards, rows: int, seed: int) -> 
     torch.manual_seed(seed)  # the other pair of each row's task
     batch = train[index]
     true = rewards.load()["train"]
-    if not np.array_equal(true["states_a"][index], batch["states_a"].numpy()):
+    if not np.array_equal(true["states_a"][index], batch.context.states_a.numpy()):
         raise ValueError("the reward and preference datasets hold different training trajectories")
     a, b = model.labeled_trajectories(batch)
     return correlation(torch.cat([a.rewards, b.rewards], 1),
@@ -55,7 +60,8 @@ def training_labels(model: ICRGModule, pairs, rewards, rows: int, seed: int) -> 
 
 
 @torch.no_grad()
-def deployment_labels(checkpoint: Path, pairs, rewards) -> dict[str, float]:
+def deployment_labels(checkpoint: str | Path, pairs: PreferenceDataModule, rewards: PreferenceDataModule
+                      ) -> dict[str, float]:
     """Per quality, the correlation of the agent's labels of the held-out behavior trajectories with the latent ones."""
     agent = load_agent(checkpoint)
     out = {}
@@ -65,37 +71,44 @@ def deployment_labels(checkpoint: Path, pairs, rewards) -> dict[str, float]:
     return out
 
 
-def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def icrg_labels(config: str | Path, checkpoints: Sequence[str | Path], rows: int = 2000, seed: int = 0,
+                data_root: str | None = None) -> dict[str, Any]:
+    """Both correlations of every ICRG checkpoint, on ``config``'s data."""
+    pairs = tprl_datamodule(config, "trajectory_preference", data_root)
+    rewards = tprl_datamodule(config, "reward_trajectory", data_root)
+    pairs.prepare_data()
+    rewards.prepare_data()
+    pairs.pairs = True  # ICRG labels each pair conditioned on another pair of its goal
+    pairs.setup("fit")
+    results = {}
+    for path in checkpoints:
+        model = load_module(path)  # weights_only, allow-listed class, checksum verified
+        if not isinstance(model, ICRGModule):
+            raise ValueError(f"--ckpt {path} is a {type(model).__name__} checkpoint, not ICRG's")
+        results[str(path)] = {"cross_fitted": model.cross_fit is not None,
+                              "training": training_labels(model.eval(), pairs, rewards, rows, seed),
+                              "deployment": deployment_labels(path, pairs, rewards)}
+    return {"config": str(config), "rows": rows, "seed": seed, "correlation": results}
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="icprl analyze icrg-labels", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ckpt", type=Path, nargs="+", action="extend", required=True, help="ICRG checkpoint(s)")
     parser.add_argument("--config", type=Path, required=True, help="the ICRG runs' data config (their config.yaml)")
     parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
     parser.add_argument("--rows", type=int, default=2000, help="training rows whose labels are scored")
     parser.add_argument("--seed", type=int, default=0, help="draws the training rows and their other pairs")
-    parser.add_argument("--json", type=Path, default=Path("docs/results/icrg_label_quality.json"))
+    parser.add_argument("--json", type=Path, help="also write the correlations here")
     args = parser.parse_args(argv)
-    pairs = datamodule(args.config, "trajectory_preference", args.data_root)
-    pairs.pairs = True  # ICRG labels each pair conditioned on another pair of its goal
-    pairs.setup("fit")
-    rewards = datamodule(args.config, "reward_trajectory", args.data_root)
-    results = {}
-    for path in args.ckpt:
-        model = load_module(path)  # weights_only, allow-listed class, checksum verified
-        if not isinstance(model, ICRGModule):
-            raise ValueError(f"--ckpt {path} is a {type(model).__name__} checkpoint, not ICRG's")
-        results[str(path)] = {"cross_fitted": model.cross_fit is not None,
-                              "training": training_labels(model.eval(), pairs, rewards, args.rows, args.seed),
-                              "deployment": deployment_labels(path, pairs, rewards)}
-    out = {"config": str(args.config), "rows": args.rows, "seed": args.seed, "correlation": results}
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(out, indent=2))
+    if args.rows < 1:
+        parser.error(f"--rows must be >= 1, got {args.rows}")
+    out = icrg_labels(args.config, args.ckpt, args.rows, args.seed, args.data_root)
+    if args.json is not None:
+        write_json_atomic(args.json, out)
     print("| checkpoint | labels | training goals | held-out low | medium | high |\n|---|---|---|---|---|---|")
-    for path, r in results.items():
+    for path, r in out["correlation"].items():
         d = r["deployment"]
         print(f"| {path} | {'cross-fitted' if r['cross_fitted'] else 'in-sample'} | {r['training']:.3f} | "
               f"{d['low']:.3f} | {d['medium']:.3f} | {d['high']:.3f} |")
     return out
-
-
-if __name__ == "__main__":
-    main()

@@ -1,7 +1,7 @@
 """Do DIT's in-context advantages tell good actions from bad ones? (paper, appendix "Decision Importance
 Transformer", eq. dit-advantage: Â = Q̂ − V̂, the weight of each behavior action in the policy loss.)
 
-    python scripts/dit_advantage_check.py \
+    icprl analyze dit-advantages \
         --dit configs/dit_metaworld.yaml:runs/dit_metaworld/checkpoints/last.ckpt \
         --icrg configs/icrg_metaworld.yaml:runs/icrg_metaworld/checkpoints/last.ckpt   # optional
 
@@ -10,7 +10,7 @@ scored with the other as context, exactly as in training (``swap_roles``). An ac
 is its *progress*: r_h − r_{h−1}, how much closer step h brought the hand to the goal (Reach's latent
 reward is −‖tcp − goal‖ after the step). DIT on true rewards reads its context's rewards; ICRG reads
 RewardGen's labels r̂ of the same trajectories (the two datasets hold the same states and actions, same
-seed). Prints JSON: the Pearson correlation of progress with Â (each model's Q̂ − V̂, the one-step TD
+seed). It prints JSON: the Pearson correlation of progress with Â (each model's Q̂ − V̂, the one-step TD
 error of its V̂: ``advantage: td``, and the return-to-go over its V̂: ``advantage: return_to_go``) and with
 r̂ (ICRG's), and of r̂ with the true per-step reward.
 Advantages that do not correlate with progress make the exp(Â/η)-weighted loss a plain behavior clone.
@@ -20,35 +20,39 @@ oracle's critic, A*(s_h, a_h) = Q̂*(s_h, a_h) − Q̂*(s_h, π*(s_h)) with π*'
 per-state constant, what the I-PRL labels compare. Its correlation with each advantage form says whether DIT's
 weights rank the behavior's actions as the optimal advantage does. Progress is a noisy proxy (the arm lags its
 mocap target, and the progress of a step mixes the state's distance with the action); A* is the action's value.
-This reads the privileged oracle and the goals, as a diagnostic script may; no learner does.
+This reads the privileged oracle and the goals, as a diagnostic may; no learner does.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
 
-from icprl_lightning.checkpoints import load_module  # noqa: E402
-from icprl_lightning.data.batches import other_rows, to_tensor
+from icprl_lightning.checkpoints import load_module
+from icprl_lightning.data.batches import ContextBatches, other_rows, stored_context
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.families.metaworld_reach.env import GOAL_SLICE
 from icprl_lightning.families.metaworld_reach.sac_family import ReachSACTaskFamily
 from icprl_lightning.methods.dit import DITModule, swap_roles
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.losses import discounted_returns, gae_advantages, return_to_go_advantages, td_advantages
+from icprl_lightning.samples import ContextSamples, Samples
 
 TRAJECTORY = ("states_a", "actions_a", "states_b", "actions_b")
 GAE_LAMBDAS = (0.5, 0.8, 0.9, 0.95)  # between the TD error (λ = 0) and the return-to-go (λ = 1)
 
 
 def correlation(x: torch.Tensor, y: torch.Tensor) -> float:
+    """Pearson correlation of two equally shaped tensors, pooled over every entry."""
     return float(np.corrcoef(x.flatten().numpy(), y.flatten().numpy())[0, 1])
 
 
-def advantages(module: DITModule, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+def advantages(module: DITModule, batch: Samples) -> dict[str, torch.Tensor]:
     """Q̂ − V̂, V̂'s one-step TD error, the return-to-go over V̂ and the rewards the module saw, for every step of
     the scored trajectories ([ξ_b; ξ_a] rows)."""
     with torch.no_grad():
@@ -90,39 +94,43 @@ def oracle_correlations(prefix: str, a: dict[str, torch.Tensor], optimal: torch.
     return {f"corr_oracle_advantage_vs_{prefix}_{form}": correlation(optimal, a[form]) for form in forms}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--dit", required=True, help="CONFIG:CHECKPOINT of DIT on true rewards")
-    parser.add_argument("--icrg", help="CONFIG:CHECKPOINT of ICRG (optional: without it, DIT's correlations only)")
-    parser.add_argument("--oracle", action="store_true",
-                        help="also correlate with the SAC oracle's A*(s, a) (Meta-World Reach, SAC recipe)")
-    args = parser.parse_args()
-    dit_config, _, dit_ckpt = args.dit.partition(":")
+def split_run(option: str, spec: str) -> tuple[str, str]:
+    """``CONFIG:CHECKPOINT`` -> (config, checkpoint); a ``ValueError`` naming ``option`` otherwise."""
+    config, _, checkpoint = spec.partition(":")
+    if not (config and checkpoint):
+        raise ValueError(f"{option} {spec!r} is not CONFIG:CHECKPOINT")
+    return config, checkpoint
+
+
+def dit_advantages(dit: str, icrg: str | None = None, oracle: bool = False) -> dict[str, Any]:
+    """The correlations of the module docstring for ``dit`` (and ``icrg``), each ``CONFIG:CHECKPOINT``."""
+    dit_config, dit_ckpt = split_run("--dit", dit)
+    icrg_config, icrg_ckpt = split_run("--icrg", icrg) if icrg else (None, None)
     rewarded = datamodule_from_config(dit_config)
+    if oracle and not isinstance(rewarded.family, ReachSACTaskFamily):
+        raise ValueError(f"--oracle needs the Reach SAC family, got {type(rewarded.family).__name__}")
     rewarded.prepare_data()
     true = rewarded.load()["val"]
-    dit_batch = {k: to_tensor(np.asarray(true[k])) for k in (*TRAJECTORY, "rewards_a", "rewards_b")}
-    dit = load_module(dit_ckpt).eval()
-    if not isinstance(dit, DITModule) or isinstance(dit, ICRGModule):
-        raise ValueError(f"--dit must be a DIT checkpoint, got {type(dit).__name__}")
-    dit_a = advantages(dit, dit_batch)
+    dit_batch = ContextBatches(true, (*TRAJECTORY, "rewards_a", "rewards_b"), 1, False, False,
+                               kind="reward_trajectory")[np.arange(len(true["states_a"]))]
+    dit_module = load_module(dit_ckpt).eval()
+    if not isinstance(dit_module, DITModule) or isinstance(dit_module, ICRGModule):
+        raise ValueError(f"--dit must be a DIT checkpoint, got {type(dit_module).__name__}")
+    dit_a = advantages(dit_module, dit_batch)
     reward = dit_a["rewards"]
     progress = reward[:, 1:] - reward[:, :-1]  # step h ≥ 1: distance before it minus distance after it
     out = {"pairs": len(true["states_a"]), "steps_scored": int(progress.numel()),
            **dit_correlations("dit", dit_a, progress)}
     optimal = None
-    if args.oracle:
-        if not isinstance(rewarded.family, ReachSACTaskFamily):
-            raise ValueError(f"--oracle needs the Reach SAC family, got {type(rewarded.family).__name__}")
+    if oracle:
         # scored rows are [ξ_b; ξ_a] (swap_roles)
         optimal = torch.cat([oracle_advantages(rewarded.family, true, side) for side in "ba"])
-        returns = (1 - dit.hparams.gamma) * discounted_returns(reward, dit.hparams.gamma)
+        returns = (1 - dit_module.hparams.gamma) * discounted_returns(reward, dit_module.hparams.gamma)
         out.update({"oracle_advantage_std": float(optimal.std()),
                     "corr_oracle_advantage_vs_progress": correlation(optimal[:, 1:], progress),
                     "corr_oracle_advantage_vs_return_to_go": correlation(optimal, returns),
                     **oracle_correlations("dit", dit_a, optimal)})
-    if args.icrg:
-        icrg_config, _, icrg_ckpt = args.icrg.partition(":")
+    if icrg_config is not None:
         preferences = datamodule_from_config(icrg_config)
         preferences.prepare_data()
         pref = preferences.load()["val"]
@@ -131,19 +139,28 @@ def main() -> None:
                 raise ValueError(f"{dit_config} and {icrg_config} do not hold the same trajectories ({k} differs)")
         rows = np.arange(len(pref["preferred"]))
         other = other_rows(rows, preferences.trajectories_per_task[1], 1)  # the next validation pair of the same goal
-        icrg_batch = {k: to_tensor(np.asarray(pref[k])) for k in (*TRAJECTORY, "preferred")}
-        icrg_batch.update({f"pair_{k}": to_tensor(np.asarray(pref[k])[other]) for k in (*TRAJECTORY, "preferred")})
-        icrg = load_module(icrg_ckpt).eval()
-        if not isinstance(icrg, ICRGModule):
-            raise ValueError(f"--icrg must be an ICRG checkpoint, got {type(icrg).__name__}")
-        icrg_a = advantages(icrg, icrg_batch)
+        icrg_batch = ContextSamples(stored_context("trajectory_preference", pref, rows),
+                                    stored_context("trajectory_preference", pref, other))
+        icrg_module = load_module(icrg_ckpt).eval()
+        if not isinstance(icrg_module, ICRGModule):
+            raise ValueError(f"--icrg must be an ICRG checkpoint, got {type(icrg_module).__name__}")
+        icrg_a = advantages(icrg_module, icrg_batch)
         out.update(dit_correlations("icrg", icrg_a, progress))
         out["corr_progress_vs_reward_hat"] = correlation(progress, icrg_a["rewards"][:, 1:])
         out["corr_true_reward_vs_reward_hat"] = correlation(reward, icrg_a["rewards"])
         if optimal is not None:
             out.update(oracle_correlations("icrg", icrg_a, optimal))
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="icprl analyze dit-advantages", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--dit", required=True, help="CONFIG:CHECKPOINT of DIT on true rewards")
+    parser.add_argument("--icrg", help="CONFIG:CHECKPOINT of ICRG (optional: without it, DIT's correlations only)")
+    parser.add_argument("--oracle", action="store_true",
+                        help="also correlate with the SAC oracle's A*(s, a) (Meta-World Reach, SAC recipe)")
+    args = parser.parse_args(argv)
+    out = dit_advantages(args.dit, args.icrg, args.oracle)
     print(json.dumps(out, indent=2))
-
-
-if __name__ == "__main__":
-    main()
+    return out

@@ -1,0 +1,206 @@
+"""ICPO played online on held-out dueling-bandit problems, beside Double Thompson Sampling.
+
+Both start from no comparisons. Each round ICPO (``online.OnlineAgent``, greedy as the checkpoint's default)
+proposes a duel by a pair rule (``online.PAIR_RULES``; default ``action_uniform``: its argmax arm against a
+uniformly random other arm, the rule of the offline evaluation, ``evaluation/duels.py``), the family's
+Bradley–Terry oracle labels it (``LinearDuelingBanditFamily.sample_labels``) and the answered duel is
+appended to the agent's KV cache as one token. DTS (``families/dueling_bandit/dts.run_dts``) selects, is
+labelled by the same BT preference matrix, and updates. Round r's duel is chosen after r − 1 comparisons
+(ICPO's first duel is its output on an empty context, a query position training never scores).
+
+Two regrets per round:
+
+* the **weak regret** of the duel played, min(R* − R(a), R* − R(a')) (``metrics.weak_regret``): the online
+  dueling-bandit objective, which charges exploration;
+* the **recommendation regret** R* − R(â_r) of the arm the agent would pick after r answered queries (ICPO's
+  greedy ``act``; DTS's first arm of round r + 1): what a query buys, the measure of active querying (the
+  pair rules: which pair to ask at the same query budget). ``queries_to_reach[target]`` is the first round
+  from which the mean recommendation regret stays at or below ``target`` until the last round (``None``:
+  never).
+
+``labels="flipped"`` / ``"random"`` is the online label diagnostic: the oracle's answers are inverted, or
+replaced by fair coins, before the agent sees them (DTS keeps the true ones). If ICPO's regret does not
+suffer, its online gains do not come from the labels.
+
+Per problem, the curves are averaged over the episode seeds (the pair rule's draws, the labels and DTS's
+draws; ``evaluation.duels.seed_streams``), then over problems; with several checkpoints (training seeds)
+each checkpoint is reported and the mean ± standard error over checkpoints is ``mean``. The held-out
+problems are the ``test_theta`` of the dataset.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from icprl_lightning.evaluation.duels import seed_streams
+from icprl_lightning.families.dueling_bandit import LinearDuelingBanditFamily
+from icprl_lightning.families.dueling_bandit.dts import run_dts
+from icprl_lightning.metrics import mean_sem, mean_sem_or_none, weak_regret
+from icprl_lightning.online import PAIR_RULES, OnlineAgent
+
+BUDGETS = (10, 25, 50, 100, 200)
+TARGETS = (0.4, 0.35, 0.3, 0.25)
+LABELS = ("own", "flipped", "random")
+
+
+def icpo_online(agent: OnlineAgent, family: LinearDuelingBanditFamily, theta: np.ndarray, rounds: int,
+                rng: np.random.Generator, labels: str = "own") -> dict[str, torch.Tensor]:
+    """``rounds`` duels per problem, each proposed after the previous ones were answered, and the greedy arm
+    after each answer: ``first``, ``second``, ``recommended`` each ``[P, rounds]``."""
+    if labels not in LABELS:
+        raise ValueError(f"labels must be one of {', '.join(LABELS)}, got {labels!r}")
+    n = len(theta)
+
+    def label(states: torch.Tensor, first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
+        y = family.sample_labels(theta, first.cpu().numpy(), second.cpu().numpy(), rng)
+        if labels == "flipped":
+            y = 1 - y
+        elif labels == "random":
+            y = rng.integers(0, 2, size=n).astype(y.dtype)
+        return torch.from_numpy(y)
+
+    agent.reset(n)
+    obs = torch.zeros(n, 0)  # a bandit has no state
+    first, second, recommended = [], [], []
+    for _ in range(rounds):
+        a, b, _ = agent.step(obs, label)
+        first.append(a.cpu())
+        second.append(b.cpu())
+        recommended.append(agent.act(obs).cpu())
+    return {k: torch.stack(v, 1) for k, v in (("first", first), ("second", second), ("recommended", recommended))}
+
+
+def dts_online(family: LinearDuelingBanditFamily, theta: np.ndarray, rounds: int, rng: np.random.Generator
+               ) -> dict[str, torch.Tensor]:
+    """DTS's duels over ``rounds + 1`` rounds; its recommendation after r comparisons is round r + 1's first arm."""
+    played = run_dts(family.preference_matrix(theta), rounds + 1, rng, alpha=family.dts_alpha)
+    first, second = torch.from_numpy(played["arms_first"]), torch.from_numpy(played["arms_second"])
+    return {"first": first[:, :rounds], "second": second[:, :rounds], "recommended": first[:, 1:]}
+
+
+def regrets(rewards: torch.Tensor, play: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Weak regret of each duel and recommendation regret after each answer, ``[P, rounds]`` each."""
+    p, r = play["first"].shape
+    flat = rewards.repeat_interleave(r, dim=0)
+    out = {"weak": weak_regret(flat, play["first"].reshape(-1), play["second"].reshape(-1))}
+    rec = play["recommended"].reshape(-1)
+    out["recommendation"] = weak_regret(flat, rec, rec)
+    return {k: v.reshape(p, r).double() for k, v in out.items()}
+
+
+def queries_to_reach(curve: Sequence[float]) -> dict[str, int | None]:
+    """Per target: the first round r (1-based) with curve[r:] ≤ target throughout, ``None`` if the last is above."""
+    curve = np.asarray(curve)
+    out = {}
+    for t in TARGETS:
+        above = np.flatnonzero(curve > t)
+        out[str(t)] = (1 if len(above) == 0 else int(above[-1]) + 2) if curve[-1] <= t else None
+    return out
+
+
+def summarize(curves: dict[str, torch.Tensor]) -> dict[str, Any]:
+    """Mean ± sem over problems: cumulative and final weak regret, recommendation regret at the budgets and
+    its mean curve, and the first round reaching each target."""
+    weak, rec = curves["weak"].numpy(), curves["recommendation"].numpy()
+    out: dict[str, Any] = {}
+    for key, values in (("cumulative_weak_regret", weak.sum(1)), ("final_weak_regret", weak[:, -1])):
+        out[key], out[f"{key}_sem"] = mean_sem(values)
+    budgets = [b for b in BUDGETS if b <= rec.shape[1]]
+    out["recommendation_regret"] = {str(b): dict(zip(("mean", "sem"), mean_sem(rec[:, b - 1]), strict=True))
+                                    for b in budgets}
+    mean_curve = rec.mean(0)
+    out["recommendation_curve"] = [round(float(v), 5) for v in mean_curve]
+    out["queries_to_reach"] = queries_to_reach(mean_curve)
+    return out
+
+
+def over_checkpoints(per_ckpt: list[dict[str, Any]]) -> dict[str, Any]:
+    """Mean ± sem over training seeds of every scalar of ``summarize`` (budgets included; sem ``None`` for one)."""
+    out: dict[str, Any] = {}
+    for key in ("cumulative_weak_regret", "final_weak_regret"):
+        out[key], out[f"{key}_sem"] = mean_sem_or_none([s[key] for s in per_ckpt])
+    budgets = per_ckpt[0]["recommendation_regret"]
+    out["recommendation_regret"] = {b: dict(zip(("mean", "sem"), mean_sem_or_none(
+        [s["recommendation_regret"][b]["mean"] for s in per_ckpt]), strict=True)) for b in budgets}
+    curve = np.mean([s["recommendation_curve"] for s in per_ckpt], 0)
+    out["recommendation_curve"] = [round(float(v), 5) for v in curve]
+    out["queries_to_reach"] = queries_to_reach(out["recommendation_curve"])
+    out["queries_to_reach_per_seed"] = {str(t): [s["queries_to_reach"][str(t)] for s in per_ckpt] for t in TARGETS}
+    return out
+
+
+def evaluate_online_bandit(dm: Any, checkpoints: Sequence[str], rules: Sequence[str] = ("action_uniform",),
+                           labels: str = "own", seeds: Sequence[int] = (0,), rounds: int = 200,
+                           n_problems: int | None = None) -> dict[str, Any]:
+    """ICPO's online regrets per pair rule (per checkpoint and over checkpoints) and DTS's, on ``dm``'s held-out
+    problems (the first ``n_problems``, default all). ``dm`` is a prepared DataModule of a
+    ``LinearDuelingBanditFamily``. Returns the JSON-ready result (module docstring)."""
+    if labels not in LABELS:
+        raise ValueError(f"--labels must be one of {', '.join(LABELS)}, got {labels!r}")
+    unknown = sorted(set(rules) - set(PAIR_RULES))
+    if unknown:
+        raise ValueError(f"--rule {unknown[0]!r} is not a pair rule; choose from {', '.join(sorted(PAIR_RULES))}")
+    family = dm.family
+    if not isinstance(family, LinearDuelingBanditFamily):
+        raise ValueError(f"the config's family is {type(family).__name__}, not a LinearDuelingBanditFamily")
+    if n_problems is not None and n_problems < 1:
+        raise ValueError(f"--n-problems must be >= 1, got {n_problems}")
+    started = time.perf_counter()
+    theta = np.asarray(dm.load()["tasks"]["test_theta"])[:n_problems]
+    loaded = {c: OnlineAgent.load(c) for c in checkpoints}  # read once; each seed below reuses the policy
+    for checkpoint, probe in loaded.items():
+        policy = probe.policy
+        if policy.state_dim != 0 or policy.action_spec != family.action_spec:
+            raise ValueError(f"{checkpoint} is not a policy of this bandit (state_dim {policy.state_dim}, actions "
+                             f"{policy.action_spec}; the family has state_dim 0 and {family.action_spec})")
+        if not 1 <= rounds <= policy.transformer.max_context:
+            raise ValueError(f"--rounds must be in [1, {policy.transformer.max_context}] (the model's max_context), "
+                             f"got {rounds}")
+    rewards = torch.from_numpy(family.expected_rewards(theta))
+
+    def seed_mean(play) -> dict[str, torch.Tensor]:
+        per_seed = [regrets(rewards, play(seed)) for seed in seeds]
+        return {k: torch.stack([c[k] for c in per_seed]).mean(0) for k in per_seed[0]}
+
+    icpo = {}
+    for rule in rules:
+        per_ckpt = []
+        for checkpoint in checkpoints:
+            def play(seed: int, checkpoint: str = checkpoint, rule: str = rule) -> dict[str, torch.Tensor]:
+                probe = loaded[checkpoint]
+                agent = OnlineAgent(probe.policy, greedy=probe.greedy, seed=seed, pair_rule=PAIR_RULES[rule]())
+                return icpo_online(agent, family, theta, rounds, seed_streams(seed)[0], labels)
+            per_ckpt.append(summarize(seed_mean(play)))
+        icpo[rule] = {"mean": over_checkpoints(per_ckpt), "per_checkpoint": per_ckpt}
+    dts = summarize(seed_mean(lambda seed: dts_online(family, theta, rounds, seed_streams(seed)[1])))
+    return {"checkpoints": [str(c) for c in checkpoints], "dataset": str(dm.path), "problems": len(theta),
+            "rounds": rounds, "seeds": list(seeds), "labels": labels, "icpo": icpo, "dts": dts,
+            "seconds": round(time.perf_counter() - started, 1)}
+
+
+def online_bandit_figure(out: dict[str, Any], path: str | Path) -> None:
+    """Recommendation regret vs answered queries, one line per pair rule (mean over training seeds), DTS dashed."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6, 3.6), layout="tight")
+    ax = fig.subplots()
+    for i, (rule, result) in enumerate(out["icpo"].items()):
+        curve = result["mean"]["recommendation_curve"]
+        ax.plot(range(1, len(curve) + 1), curve, color=f"C{i}", label=f"ICPO, {rule} pairs")
+    dts = out["dts"]["recommendation_curve"]
+    ax.plot(range(1, len(dts) + 1), dts, color="k", linestyle="--", label="DTS")
+    ax.set_xlabel("answered queries")
+    ax.set_ylabel("regret of the recommended arm")
+    ax.set_yscale("log")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    ax.set_title(f"online dueling bandits, {out['problems']} held-out problems, labels: {out['labels']} "
+                 f"({len(out['checkpoints'])} training seeds)", fontsize=8)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)

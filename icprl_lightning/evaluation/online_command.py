@@ -1,0 +1,121 @@
+"""``icprl evaluate online``: deploy I-PRL checkpoints online, asking for a comparison as they act.
+
+    icprl evaluate online --config configs/icpo_darkroom.yaml --config configs/overlays/uniform_states.yaml \
+        --ckpt runs/icprl/<id>/checkpoints/last.ckpt [--ckpt ...] [--rule action_uniform --rule top_two ...] \
+        [--labels own|flipped|random] [--seeds 0 1] [--episodes 5] [--dqn dqn_from_scratch_darkroom.json] \
+        [--out results/online_darkroom]
+    icprl evaluate online --config configs/icpo_bandit.yaml --ckpt runs/icprl/<id>/checkpoints/last.ckpt \
+        --seeds 0 1 2 [--rounds 200] [--n-problems 50]
+
+The config's data section names the dataset (generated if missing) whose held-out tasks the checkpoints
+play, from an empty context. An MDP family (any ``TaskFamily`` whose oracle has ``utility``) is played as
+``evaluation.online_mdp`` says: ``--episodes`` episodes in a row, ``max_context / episodes`` queries each,
+answered by the dataset's annotator, beside the same checkpoints on the offline contexts (and ``--dqn``'s
+learning curve). Dueling bandits are played as ``evaluation.online_bandit`` says: ``--rounds`` duels beside
+Double Thompson Sampling. ``--rule`` (repeat to compare) is the pair rule the agent asks by; ``--labels``
+flipped / random is the online label diagnostic (the answers inverted, or replaced by fair coins, before the
+agent sees them). Several ``--ckpt`` are training seeds: every row is then the mean ± sem over them.
+
+Prints the result as JSON; ``--out PATH`` also writes ``PATH.json`` and the figure ``PATH.png``.
+``evaluate_online`` is the same run as a function.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from icprl_lightning.data.config import datamodule_from_config
+from icprl_lightning.evaluation import online_bandit, online_mdp
+from icprl_lightning.evaluation.pairing import is_bandit_data
+from icprl_lightning.families.base import TaskFamily
+from icprl_lightning.io import write_json_atomic
+from icprl_lightning.online import PAIR_RULES
+
+MDP_ONLY = {"episodes": "--episodes", "quality": "--quality", "targets": "--targets", "dqn": "--dqn"}
+BANDIT_ONLY = {"rounds": "--rounds", "n_problems": "--n-problems"}
+
+
+def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | Path],
+                    rules: Sequence[str] = ("action_uniform",), labels: str = "own",
+                    seeds: Sequence[int] | None = None, episodes: int | None = None, quality: str | None = None,
+                    targets: Sequence[float] | None = None, dqn: str | Path | None = None,
+                    rounds: int | None = None, n_problems: int | None = None,
+                    out: str | Path | None = None) -> dict[str, Any]:
+    """``icprl evaluate online`` as a function: the same inputs as its options, the JSON it prints as a dict.
+
+    ``configs`` stack as ``--config`` does; ``episodes``, ``quality``, ``targets`` and ``dqn`` apply to MDP
+    families, ``rounds`` and ``n_problems`` to dueling bandits (a value given for the other kind is a
+    ``ValueError`` naming its option). ``seeds`` default to 0 1 (MDP) or 0 (bandits). ``out`` writes
+    ``<out>.json`` and ``<out>.png``.
+    """
+    if not configs:
+        raise ValueError("--config: give the checkpoints' dataset config")
+    if not checkpoints:
+        raise ValueError("--ckpt: give at least one I-PRL checkpoint")
+    checkpoints = [str(c) for c in checkpoints]
+    dm = datamodule_from_config(*configs, progress=False)
+    bandit = is_bandit_data(dm)
+    given = {"episodes": episodes, "quality": quality, "targets": targets, "dqn": dqn, "rounds": rounds,
+             "n_problems": n_problems}
+    for key, option in (MDP_ONLY if bandit else BANDIT_ONLY).items():
+        if given[key] is not None:
+            raise ValueError(f"{option} applies to {'MDP families' if bandit else 'dueling bandits'}; the config's "
+                             f"data are {'a dueling bandit' if bandit else 'an MDP family'}'s")
+    dm.prepare_data()
+    if bandit:
+        result = online_bandit.evaluate_online_bandit(
+            dm, checkpoints, rules, labels, seeds if seeds is not None else (0,),
+            rounds if rounds is not None else 200, n_problems)
+    else:
+        if not isinstance(getattr(dm, "family", None), TaskFamily):
+            raise ValueError(f"the data of {', '.join(map(str, configs))} have no task family to answer queries at "
+                             "the agent's states (recorded data have no simulator); use a task family's config")
+        dm.setup("validate")
+        result = online_mdp.evaluate_online_mdp(
+            dm, checkpoints, rules, labels, seeds if seeds is not None else (0, 1),
+            episodes if episodes is not None else 5, quality or "medium", targets, dqn)
+    result = {"configs": [str(c) for c in configs], **result}
+    if out is not None:
+        write_json_atomic(f"{out}.json", result)
+        (online_bandit.online_bandit_figure if bandit else online_mdp.online_mdp_figure)(result, f"{out}.png")
+    return result
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="icprl evaluate online", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", action="append", required=True,
+                        help="the checkpoints' dataset config (repeat to stack overlays)")
+    parser.add_argument("--ckpt", action="append", required=True,
+                        help="an I-PRL checkpoint (repeat: training seeds of one method)")
+    parser.add_argument("--rule", action="append", choices=sorted(PAIR_RULES), default=None,
+                        help="the pair rule the agent asks by (repeat to compare; default action_uniform)")
+    parser.add_argument("--labels", choices=online_mdp.LABELS, default="own",
+                        help="the online label diagnostic: the answers as given, inverted, or fair coins")
+    parser.add_argument("--seeds", type=int, nargs="+", default=None,
+                        help="episode seeds (default: 0 1 for MDP families, 0 for dueling bandits)")
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="MDP: querying episodes in a row, max_context / episodes queries each (default 5)")
+    parser.add_argument("--quality", default=None,
+                        help="MDP: the suite whose tasks and episodes are played online (default medium)")
+    parser.add_argument("--targets", type=float, nargs="*", default=None,
+                        help="MDP: returns to reach (default: the offline rows')")
+    parser.add_argument("--dqn", default=None, help="MDP: a JSON of `icprl baseline dqn` for its learning curve")
+    parser.add_argument("--rounds", type=int, default=None, help="bandits: duels per problem (default 200)")
+    parser.add_argument("--n-problems", type=int, default=None,
+                        help="bandits: the first N held-out problems (default all)")
+    parser.add_argument("--out", help="also write <out>.json and the figure <out>.png")
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
+    args = parse_args(argv)
+    result = evaluate_online(args.config, args.ckpt, args.rule or ["action_uniform"], args.labels, args.seeds,
+                             args.episodes, args.quality, args.targets, args.dqn, args.rounds, args.n_problems,
+                             args.out)
+    print(json.dumps(result, indent=2), flush=True)
+    return result
