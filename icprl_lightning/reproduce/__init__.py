@@ -1,25 +1,24 @@
-"""``icprl reproduce TABLE``: remake a table of ``docs/RESULTS.md`` from scratch (``runner.py`` says how).
+"""``icprl reproduce TABLE``: remake a results table from scratch (``runner.py`` says how).
 
-``tables.py`` is the catalogue (runs, evaluations, ``TABLES``), ``runner.py`` trains and evaluates,
-``fit_logs.py`` reads a finished fit's CSV log, ``figures.py`` draws what ``icprl evaluate`` does not.
+Each table is an experiment file, ``configs/experiment/<table>.yaml``: ``experiments.py`` reads it into a table
+(``tables.py``: runs and evaluations), ``runner.py`` trains and evaluates, ``fit_logs.py`` reads a finished fit's
+CSV log, ``figures.py`` draws what ``icprl evaluate`` does not.
 """
 
+from icprl_lightning.reproduce.experiments import EXPERIMENTS, TableError, load_table, load_tables, table_names
 from icprl_lightning.reproduce.figures import FIGURES
 from icprl_lightning.reproduce.fit_logs import final_epoch_means, learning_curve
-from icprl_lightning.reproduce.runner import fit_command, fit_inputs, main, needed_runs, reproduce, stages
+from icprl_lightning.reproduce.runner import evaluate_online, fit_command, fit_inputs, main, reproduce
 from icprl_lightning.reproduce.tables import (
-    MISTAKE_RATES,
-    REACH_CONTEXTS_PER_GOAL,
-    REACH_RECIPES,
-    REACH_SCALES,
-    RECIPE_TITLES,
-    TABLES,
     Evaluation,
+    OnlineEvaluation,
     Run,
     Table,
+    needed_runs,
     slug,
+    stages,
 )
 
-__all__ = ["FIGURES", "MISTAKE_RATES", "REACH_CONTEXTS_PER_GOAL", "REACH_RECIPES", "REACH_SCALES", "RECIPE_TITLES",
-           "TABLES", "Evaluation", "Run", "Table", "final_epoch_means", "fit_command", "fit_inputs", "learning_curve",
-           "main", "needed_runs", "reproduce", "slug", "stages"]
+__all__ = ["EXPERIMENTS", "FIGURES", "Evaluation", "OnlineEvaluation", "Run", "Table", "TableError",
+           "evaluate_online", "final_epoch_means", "fit_command", "fit_inputs", "learning_curve", "load_table",
+           "load_tables", "main", "needed_runs", "reproduce", "slug", "stages", "table_names"]

@@ -8,22 +8,29 @@ from pathlib import Path
 
 from icprl_lightning.evaluation.report import figure_title
 from icprl_lightning.families.base import QUALITIES
-from icprl_lightning.reproduce.tables import BETAS, LAMBDAS, MISTAKE_RATES, Table
+from icprl_lightning.reproduce.tables import Table
+
+BETA, LAMBDA = "model.init_args.beta", "model.init_args.lam"
+EPSILON = "data.init_args.setting.init_args.annotator.init_args.epsilon"
 
 
 def lambda_beta_figure(table: Table, out_dir: Path) -> None:
-    """Return vs λ, one line per β, greedy (solid) and sampled (dashed), one panel per context quality."""
+    """Return vs λ, one line per β, greedy (solid) and sampled (dashed), one panel per context quality: each run
+    is the point of the β and λ its overrides set."""
     from matplotlib.figure import Figure
 
+    grid = {(run.setting(BETA), run.setting(LAMBDA)): run.name for run in table.runs}
+    betas = list(dict.fromkeys(beta for beta, _ in grid))
+    lambdas = sorted({lam for _, lam in grid}, key=float)
     payloads = {e.suffix: json.loads((out_dir / f"{table.name}{e.suffix}.json").read_text()) for e in table.evaluations}
     qualities = ("low", "medium", "high")
     fig = Figure(figsize=(12, 3.4), layout="tight")
     axes = fig.subplots(1, len(qualities), sharey=True)
     for ax, quality in zip(axes, qualities, strict=True):
-        for i, beta in enumerate(BETAS):
+        for i, beta in enumerate(betas):
             for suffix, style in (("", "-"), ("_sampled", "--")):
-                rows = [payloads[suffix]["results"][f"b{beta}_l{lam}"][quality] for lam in LAMBDAS]
-                ax.errorbar([float(lam) for lam in LAMBDAS], [r["return"] for r in rows],
+                rows = [payloads[suffix]["results"][grid[beta, lam]][quality] for lam in lambdas]
+                ax.errorbar([float(lam) for lam in lambdas], [r["return"] for r in rows],
                             yerr=[r.get("return_sem", 0.0) for r in rows], color=f"C{i}", linestyle=style,
                             marker=".", capsize=2,
                             label=f"β = {beta}, {'greedy' if suffix == '' else 'sampled'}")
@@ -39,18 +46,20 @@ def lambda_beta_figure(table: Table, out_dir: Path) -> None:
 
 def teacher_noise_figure(table: Table, out_dir: Path) -> None:
     """The held-out metric vs the teacher's mistake rate, one line per context source (bandits: weak regret,
-    DTS dashed) or per context quality (DarkRoom: greedy return, behavior dashed)."""
+    DTS dashed) or per context quality (DarkRoom: greedy return, behavior dashed): each run is the point of the
+    mistake rate its overrides give the teacher."""
     from matplotlib.figure import Figure
 
     results = json.loads((out_dir / f"{table.name}.json").read_text())["results"]
-    sources = list(results[f"ICPO eps{MISTAKE_RATES[0]}"])
-    metric = "weak_regret" if "weak_regret" in results[f"ICPO eps{MISTAKE_RATES[0]}"][sources[0]] else "return"
+    runs = sorted(((float(run.setting(EPSILON)), run.name) for run in table.runs), key=lambda r: r[0])
+    sources = list(results[runs[0][1]])
+    metric = "weak_regret" if "weak_regret" in results[runs[0][1]][sources[0]] else "return"
     reference = "dts" if metric == "weak_regret" else "behavior"
     fig = Figure(figsize=(5.5, 3.6), layout="tight")
     ax = fig.subplots()
-    eps = [float(e) for e in MISTAKE_RATES]
+    eps = [e for e, _ in runs]
     for i, source in enumerate(sources):
-        rows = [results[f"ICPO eps{e}"][source] for e in MISTAKE_RATES]
+        rows = [results[name][source] for _, name in runs]
         ax.errorbar(eps, [r[metric] for r in rows], yerr=[r.get(f"{metric}_sem", 0.0) for r in rows],
                     color=f"C{i}", marker=".", capsize=2, label=f"ICPO, {source} contexts")
         if reference in results and source in results[reference]:

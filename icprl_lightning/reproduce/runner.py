@@ -1,18 +1,22 @@
-"""``icprl reproduce TABLE``: regenerate a results table of ``docs/RESULTS.md`` and its figure from scratch.
+"""``icprl reproduce TABLE``: regenerate a results table and its figure from scratch.
 
     icprl reproduce --list
     icprl reproduce darkroom_ipref                     # 3 training seeds per method, then evaluation
     icprl reproduce darkroom_ipref --seeds 0 --jobs 1  # a quicker, one-seed version
     icprl reproduce darkroom_ipref --dry-run           # print the commands only
     icprl reproduce darkroom_ipref --redraw            # redraw its figures from docs/results, nothing else
+    icprl reproduce my_table.yaml --dry-run            # a table of your own: an experiment file anywhere
 
-A table is a list of runs (a method's configs and overrides) and the evaluations made of them. Every run
-is trained once per training seed (``--seed_everything``) with ``icprl fit`` in its own process, at most
-``--jobs`` at a time (``OMP_NUM_THREADS`` = cores / jobs each), its log in ``<work>/<table>/<run>-seed<s>.log``;
-then ``icprl evaluate`` deploys each run's last checkpoints (all its training seeds) on the held-out
-contexts with the context diagnostics, greedy and sampled, and writes ``docs/results/<table>[_sampled]``
-(``.json``, ``.md``, ``.png``, ``_diagnostics.png``). Training seeds share the dataset (the family's seed
-fixes it); they differ in initialization, shuffling and the pairs drawn.
+A table is an experiment file, ``configs/experiment/<table>.yaml`` (``experiments.py`` reads it): runs (a method's
+configs and overrides) and the evaluations made of them. Every run is trained once per training seed
+(``--seed_everything``) with ``icprl fit`` in its own process, at most ``--jobs`` at a time
+(``OMP_NUM_THREADS`` = cores / jobs each), its log in ``<work>/<table>/<run>-seed<s>.log``; then
+``icprl evaluate`` deploys each run's last checkpoints (all its training seeds) on the held-out contexts with
+the context diagnostics, greedy and sampled, and writes ``docs/results/<table>[_sampled]`` (``.json``, ``.md``,
+``.png``, ``_diagnostics.png``); an online evaluation deploys them asking for comparisons as they act
+(``evaluate_online``). Training seeds share the dataset (the family's seed fixes it); they differ in
+initialization, shuffling and the pairs drawn. A table whose ``runs_from`` names another trains (or finds)
+that table's fits in its folder, ``<work>/<other table>/``.
 
 Each fit logs to CSV; the rollout callback's held-out returns per epoch become ``learning_curves`` in
 the summary and ``docs/results/<table>_curve.png``. A finished fit records its checkpoint in
@@ -37,13 +41,13 @@ import subprocess
 import sys
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import replace
 from pathlib import Path
 
 from icprl_lightning.io import write_json_atomic
+from icprl_lightning.reproduce.experiments import EXPERIMENTS, TableError, load_table, load_tables
 from icprl_lightning.reproduce.figures import FIGURES, curve_figure
 from icprl_lightning.reproduce.fit_logs import final_epoch_means, learning_curve
-from icprl_lightning.reproduce.tables import TABLES, Evaluation, Run, Table, slug
+from icprl_lightning.reproduce.tables import Evaluation, OnlineEvaluation, Run, Table, needed_runs, slug, stages
 
 
 class RecordError(ValueError):
@@ -74,11 +78,11 @@ def fit_command(run: Run, seed: int, root: Path, needed: dict[str, str] | None =
     """``icprl fit`` of one run and training seed, logging to CSV in ``<root>/<run>-seed<s>/version_0``;
     ``needed`` maps each run of ``run.needs`` to its checkpoint for this seed."""
     configs = [arg for config in run.configs for arg in ("--config", config)]
-    stages = []
+    earlier = []
     for flag, names in run.needs:
         paths = [(needed or {})[name] for name in names]
-        stages += [flag, paths[0] if len(names) == 1 else "[" + ",".join(paths) + "]"]
-    return ["icprl", "fit", *configs, *run.overrides, *stages, "--seed_everything", str(seed),
+        earlier += [flag, paths[0] if len(names) == 1 else "[" + ",".join(paths) + "]"]
+    return ["icprl", "fit", *configs, *run.overrides, *earlier, "--seed_everything", str(seed),
             "--trainer.logger", "lightning.pytorch.loggers.CSVLogger", "--trainer.logger.init_args.save_dir",
             str(root), "--trainer.logger.init_args.name", f"{slug(run.name)}-seed{seed}",
             "--trainer.default_root_dir", str(root)]
@@ -96,19 +100,10 @@ def fit_inputs(run: Run, command: list[str], needed_inputs: tuple[str, ...] = ()
     return digest.hexdigest()
 
 
-def stages(runs: tuple[Run, ...]) -> list[list[Run]]:
-    """The runs in the order they can be trained: each stage only needs runs of earlier stages."""
-    names = {run.name for run in runs}
-    order, placed = [], set()
-    while len(placed) < len(runs):
-        ready = [r for r in runs if r.name not in placed and all(n in placed for _, ns in r.needs for n in ns)]
-        if not ready:
-            missing = {n for r in runs for _, ns in r.needs for n in ns} - names
-            raise ValueError(f"runs need {sorted(missing)}, which the table lacks" if missing else
-                             "the runs' needs form a cycle")
-        order.append(ready)
-        placed.update(r.name for r in ready)
-    return order
+def saved_config(checkpoints: list[str]) -> Path:
+    """The ``config.yaml`` a run's first training seed saved: it names the run's exact dataset (configs, overlays
+    and overrides)."""
+    return Path(checkpoints[0]).parent.parent / "config.yaml"
 
 
 def evaluate_command(table: Table, evaluation: Evaluation, checkpoints: dict[str, list[str]], out_dir: Path
@@ -118,12 +113,38 @@ def evaluate_command(table: Table, evaluation: Evaluation, checkpoints: dict[str
     if table.contexts != ("own",):
         command += ["--contexts", *table.contexts]
     for run in (r for r in table.runs if r.evaluated):
-        # the first seed's saved config.yaml names the run's exact dataset (configs, overlays and overrides)
-        config = Path(checkpoints[run.name][0]).parent.parent / "config.yaml"
-        command += ["--run", f"{run.name}={config}:{','.join(checkpoints[run.name])}"]
+        command += ["--run", f"{run.name}={saved_config(checkpoints[run.name])}:{','.join(checkpoints[run.name])}"]
     for baseline in table.baselines:
         command += ["--baseline", baseline]
     return command
+
+
+def evaluate_online(table: Table, evaluation: OnlineEvaluation, checkpoints: dict[str, list[str]], out_dir: Path
+                    ) -> dict:
+    """Deploy every evaluated run of ``table`` online as ``evaluation`` says (each run's training seeds are its
+    ``checkpoints``, its dataset the ``saved_config`` of the first), episode seeds ``table.eval_seeds``, beside
+    ``table.baselines``; write ``<out_dir>/<table><suffix>.json`` (and ``.png`` with ``evaluation.figure``) and
+    return what it records of the evaluation."""
+    from icprl_lightning.evaluation.online_command import evaluate_online as deploy_online
+
+    runs = [r for r in table.runs if r.evaluated]
+    if len(runs) != 1:
+        raise ValueError(f"{table.name}: an online evaluation deploys one run, the table has "
+                         f"{[r.name for r in runs]}")
+    (run,) = runs
+    baselines = dict(b.split("=", 1) for b in table.baselines)
+    unknown = sorted(set(baselines) - {"DQN from scratch"})
+    if unknown:
+        raise ValueError(f"{table.name}: online evaluations take only the 'DQN from scratch' baseline, got {unknown}")
+    out = out_dir / f"{table.name}{evaluation.suffix}"
+    result = deploy_online([saved_config(checkpoints[run.name])], checkpoints[run.name], rules=evaluation.rules,
+                           labels=evaluation.labels, seeds=table.eval_seeds, episodes=evaluation.episodes,
+                           quality=evaluation.quality, rounds=evaluation.rounds, n_problems=evaluation.problems,
+                           dqn=baselines.get("DQN from scratch") if evaluation.labels == "own" else None,
+                           out=out if evaluation.figure else None)
+    if not evaluation.figure:
+        write_json_atomic(f"{out}.json", result)
+    return {"out": f"{out}.json", "run": run.name}
 
 
 def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: int, which: str = "last") -> dict:
@@ -146,28 +167,13 @@ def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: 
     return result
 
 
-def needed_runs(table: Table, only: list[str]) -> Table:
-    """``table`` cut to the runs named in ``only`` and the earlier stages they need."""
-    by_name = {run.name: run for run in table.runs}
-    unknown = sorted(set(only) - set(by_name))
-    if unknown:
-        raise ValueError(f"--only {unknown}: no such run in {table.name}; its runs: {list(by_name)}")
-    keep, todo = set(), list(only)
-    while todo:
-        name = todo.pop()
-        if name not in keep:
-            keep.add(name)
-            todo += [n for _, names in by_name[name].needs for n in names]
-    return replace(table, runs=tuple(run for run in table.runs if run.name in keep))
-
-
 def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Path, refit: bool = False,
               dry_run: bool = False, threads: int | None = None, only: list[str] | None = None) -> dict:
     """Train every run of ``table`` per seed (resuming recorded fits), then evaluate and write the outputs; with
     ``only``, train just those runs and what they need, and stop there (the records serve the full command)."""
     if only:
         table = needed_runs(table, only)
-    root = work / table.name
+    root = work / (table.runs_from or table.name)
     root.mkdir(parents=True, exist_ok=True)
     threads = threads or max(1, (os.cpu_count() or 1) // jobs)
     done: dict[tuple[str, int], dict] = {}
@@ -238,10 +244,14 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
     from icprl_lightning.evaluation.command import main as evaluate_main
 
     for evaluation in table.evaluations if any(run.evaluated for run in table.runs) else ():
-        command = evaluate_command(table, evaluation, checkpoints, out_dir)
         began = time.time()
-        evaluate_main(command[2:])
-        evaluations.append({"command": shlex.join(command), "seconds": round(time.time() - began, 1)})
+        if isinstance(evaluation, OnlineEvaluation):
+            record = {"online": evaluate_online(table, evaluation, checkpoints, out_dir)}
+        else:
+            command = evaluate_command(table, evaluation, checkpoints, out_dir)
+            evaluate_main(command[2:])
+            record = {"command": shlex.join(command)}
+        evaluations.append({**record, "seconds": round(time.time() - began, 1)})
     if table.figure:
         FIGURES[table.figure](table, out_dir)
     curves = {run.name: {str(s): learning_curve(done[(run.name, s)]["checkpoint"]) for s in run_seeds[run.name]}
@@ -260,11 +270,13 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
 
 
 def redraw(table: Table, out_dir: Path) -> list[Path]:
-    """Redraw ``table``'s figures from the outputs a full run wrote to ``out_dir`` (each evaluation's JSON, the
-    learning curves in ``<table>_reproduce.json``), without training or evaluating; returns the files read."""
+    """Redraw ``table``'s figures from the outputs a full run wrote to ``out_dir`` (each ``icprl evaluate``'s JSON,
+    the learning curves in ``<table>_reproduce.json``), without training or evaluating; returns the files read.
+    An online evaluation draws its own figure when it runs."""
     from icprl_lightning.evaluation.report import write_figures
 
-    sources = [out_dir / f"{table.name}{e.suffix}.json" for e in table.evaluations] + [
+    offline = [e for e in table.evaluations if isinstance(e, Evaluation)]
+    sources = [out_dir / f"{table.name}{e.suffix}.json" for e in offline] + [
         out_dir / f"{table.name}_reproduce.json"]
     missing = [str(p) for p in sources if not p.exists()]
     if missing:
@@ -281,8 +293,10 @@ def redraw(table: Table, out_dir: Path) -> list[Path]:
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(prog="icprl reproduce", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("table", nargs="?", choices=sorted(TABLES))
-    parser.add_argument("--list", action="store_true", help="list the tables and what one fit costs")
+    parser.add_argument("table", nargs="?", help=f"a table of {EXPERIMENTS}/ (its file's name), or the path of an "
+                        "experiment file (*.yaml)")
+    parser.add_argument("--list", action="store_true", help=f"list the tables of {EXPERIMENTS}/ and what one fit "
+                        "costs")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
     parser.add_argument("--jobs", type=int, default=2, help="fits at a time (each gets cores / jobs threads)")
     parser.add_argument("--threads", type=int, help="torch threads per fit (default: cores / jobs)")
@@ -295,18 +309,21 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--redraw", action="store_true", help="only redraw the figures from the table's JSON "
                         "outputs in --out (after a change to the figure code)")
     args = parser.parse_args(argv)
-    if args.list or args.table is None:
-        for table in TABLES.values():
-            print(f"{table.name}: {table.title}; {len(table.runs)} runs × seeds; {table.budget}")
-        return {}
     if args.jobs < 1:
         parser.error(f"--jobs must be ≥ 1, got {args.jobs}")
-    if args.redraw:
-        sources = redraw(TABLES[args.table], Path(args.out))
-        print(f"{args.table}: figures redrawn from {', '.join(map(str, sources))}", flush=True)
-        return {}
-    try:
-        return reproduce(TABLES[args.table], args.seeds, args.jobs, Path(args.work), Path(args.out), args.refit,
-                         args.dry_run, args.threads, args.only)
-    except RecordError as e:  # a user's file, not a bug: one line, no traceback
+    try:  # a user's file, not a bug: one line, no traceback
+        if args.list or args.table is None:
+            for table in load_tables().values():
+                runs = f"{len(table.runs)} runs of {table.runs_from}" if table.runs_from else f"{len(table.runs)} runs"
+                online = " (online)" if any(isinstance(e, OnlineEvaluation) for e in table.evaluations) else ""
+                print(f"{table.name}: {table.title}{online}; {runs} × seeds; {table.budget}")
+            return {}
+        table = load_table(args.table)
+        if args.redraw:
+            sources = redraw(table, Path(args.out))
+            print(f"{table.name}: figures redrawn from {', '.join(map(str, sources))}", flush=True)
+            return {}
+        return reproduce(table, args.seeds, args.jobs, Path(args.work), Path(args.out), args.refit, args.dry_run,
+                         args.threads, args.only)
+    except (RecordError, TableError) as e:
         parser.exit(2, f"{parser.prog}: error: {e}\n")

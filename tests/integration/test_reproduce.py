@@ -9,12 +9,14 @@ import pytest
 from factories import REPO, tiny_darkroom_args
 
 from icprl_lightning.reproduce import (
-    TABLES,
     Evaluation,
+    OnlineEvaluation,
     Run,
     Table,
     fit_command,
     fit_inputs,
+    load_table,
+    load_tables,
     main,
     needed_runs,
     reproduce,
@@ -23,14 +25,20 @@ from icprl_lightning.reproduce import (
 )
 
 
-def test_every_table_names_existing_configs_and_lists(capsys):
-    for table in TABLES.values():
-        for run in table.runs:
-            for config in run.configs:
-                assert (REPO / config).exists(), (table.name, config)
+@pytest.fixture
+def tables(monkeypatch) -> dict[str, Table]:
+    """Every table of configs/experiment/, read from the repository root (their paths are relative to it)."""
+    monkeypatch.chdir(REPO)
+    return load_tables()
+
+
+def test_list_names_every_experiment_file_with_its_budget(tables, capsys):
+    assert len(tables) == len(list((REPO / "configs/experiment").glob("*.yaml"))) > 20
     main(["--list"])
-    listed = capsys.readouterr().out
-    assert all(name in listed for name in TABLES)
+    listed = capsys.readouterr().out.splitlines()
+    assert [line.split(":")[0] for line in listed] == sorted(tables)
+    assert all(table.budget in line for table, line in zip(tables.values(), listed, strict=True))
+    assert "online_bandit: " in "\n".join(listed) and "1 runs of bandit" in "\n".join(listed)
 
 
 def test_fit_command_sets_the_training_seed_after_the_configs(tmp_path):
@@ -69,8 +77,8 @@ def test_a_tiny_table_trains_two_seeds_evaluates_and_resumes(tmp_path, monkeypat
     assert again["fits"] == summary["fits"]
 
 
-def test_run_names_read_back_through_evaluate_and_paths():
-    for table in TABLES.values():
+def test_run_names_read_back_through_evaluate_and_paths(tables):
+    for table in tables.values():
         for run in table.runs:
             assert "=" not in run.name and "," not in run.name, run.name  # --run NAME=CONFIG:CKPT,CKPT
     assert slug("ICPO (labels at tau 0.25)") == "ICPO_labels_at_tau_0.25"
@@ -119,15 +127,16 @@ def test_a_damaged_or_foreign_record_is_one_error_naming_it_before_any_fit(tmp_p
         raise AssertionError("a fit started before the records were checked")
 
     monkeypatch.setattr(rep, "_run_fit", no_fit)
-    monkeypatch.setitem(TABLES, "pair", Table("pair", "pair", (Run("A", ("configs/icpo_darkroom.yaml",)),
-                                                               Run("B", ("configs/icpo_darkroom.yaml",)))))
+    pair = tmp_path / "pair.yaml"  # a table of the user's own, named by its path
+    pair.write_text("title: pair\nruns:\n  - {name: A, configs: [configs/icpo_darkroom.yaml]}\n"
+                    "  - {name: B, configs: [configs/icpo_darkroom.yaml]}\n")
     monkeypatch.chdir(REPO)
     work = tmp_path / "work"
     (work / "pair").mkdir(parents=True)
     bad = work / "pair" / "B-seed0.json"
     bad.write_text(text)
     with pytest.raises(SystemExit) as exit_:
-        main(["pair", "--seeds", "0", "--jobs", "1", "--work", str(work), "--out", str(tmp_path / "out")])
+        main([str(pair), "--seeds", "0", "--jobs", "1", "--work", str(work), "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.count("\n") == 1, err  # one line, no traceback
     assert err.startswith(f"icprl reproduce: error: fit record {bad} ") and problem in err
@@ -136,13 +145,16 @@ def test_a_damaged_or_foreign_record_is_one_error_naming_it_before_any_fit(tmp_p
 
 @pytest.mark.parametrize("table_name, metric, reference", [("bandit_teacher_noise", "weak_regret", "dts"),
                                                            ("darkroom_teacher_noise", "return", "behavior")])
-def test_teacher_noise_figure_reads_regret_or_return(tmp_path, table_name, metric, reference):
-    from icprl_lightning.reproduce import FIGURES, MISTAKE_RATES
+def test_teacher_noise_figure_reads_regret_or_return(tables, tmp_path, table_name, metric, reference):
+    from icprl_lightning.reproduce import FIGURES
 
-    table = TABLES[table_name]
+    table = tables[table_name]
+    rates = {run.name: run.setting("data.init_args.setting.init_args.annotator.init_args.epsilon")
+             for run in table.runs}
+    assert rates == {f"ICPO eps{e}": e for e in ("0", "0.1", "0.2", "0.3")}
     sources = ("uniform", "dts") if metric == "weak_regret" else ("low", "medium", "high")
-    results = {f"ICPO eps{e}": {s: {metric: 0.1 * i, f"{metric}_sem": 0.01} for s in sources}
-               for i, e in enumerate(MISTAKE_RATES)}
+    results = {name: {s: {metric: 0.1 * i, f"{metric}_sem": 0.01} for s in sources}
+               for i, name in enumerate(rates)}
     results[reference] = {s: {metric: 0.5} for s in sources}
     (tmp_path / f"{table_name}.json").write_text(json.dumps({"results": results}))
     FIGURES[table.figure](table, tmp_path)
@@ -180,9 +192,9 @@ def test_only_keeps_the_named_runs_and_what_they_need():
         needed_runs(table, ["ICRG"])
 
 
-def test_the_tprl_table_passes_each_seeds_reward_models_to_icrg(tmp_path, capsys):
+def test_the_tprl_table_passes_each_seeds_reward_models_to_icrg(tables, tmp_path, capsys):
     """Dry run with the RewardGen stages recorded: ICRG's commands name the same seed's checkpoints."""
-    table = TABLES["darkroom_tprl"]
+    table = tables["darkroom_tprl"]
     work = tmp_path / "work"
     (work / table.name).mkdir(parents=True)
     ckpt = tmp_path / "ckpt"  # the recorded checkpoints exist: a record whose file is gone is trained again
@@ -277,10 +289,10 @@ def test_final_epoch_means_average_the_last_epochs_training_metrics(tmp_path):
     assert final_epoch_means(str(tmp_path / "elsewhere" / "checkpoints" / "last.ckpt")) == {}
 
 
-def test_redraw_draws_every_figure_from_the_outputs_alone(tmp_path):
+def test_redraw_draws_every_figure_from_the_outputs_alone(tables, tmp_path):
     from icprl_lightning.reproduce.runner import main
 
-    table = TABLES["darkroom_dit_steps"]
+    table = tables["darkroom_dit_steps"]
     with pytest.raises(FileNotFoundError, match="run `icprl reproduce darkroom_dit_steps` first"):
         main([table.name, "--redraw", "--out", str(tmp_path)])
     results = REPO / "docs" / "results"
@@ -289,3 +301,84 @@ def test_redraw_draws_every_figure_from_the_outputs_alone(tmp_path):
     main([table.name, "--redraw", "--out", str(tmp_path)])
     drawn = {p.name for p in tmp_path.glob("*.png")}
     assert drawn == {f"{table.name}{s}.png" for s in ("", "_diagnostics", "_sampled", "_sampled_diagnostics", "_curve")}
+
+
+def test_a_table_of_another_tables_runs_shares_its_fits_and_evaluates_online_through_one_call(tmp_path, monkeypatch,
+                                                                                               capsys):
+    """An online table deploys the runs of another: its fits land in that table's folder (and are found there by
+    that table), and each online evaluation is one ``evaluate_online`` call, which deploys the run's training
+    seeds through the package's online evaluation (``evaluation/online_command.py``) with the table's options."""
+    import icprl_lightning.reproduce.runner as rep
+
+    def fake_fit(command, inputs, log, record, threads, which="last"):
+        checkpoint = tmp_path / "ckpt" / f"{command[command.index('--trainer.logger.init_args.name') + 1]}.ckpt"
+        checkpoint.parent.mkdir(exist_ok=True)
+        checkpoint.write_bytes(b"")
+        result = {"command": " ".join(command), "inputs_sha256": inputs, "checkpoint": str(checkpoint), "seconds": 0}
+        record.write_text(json.dumps(result))
+        return result
+
+    monkeypatch.setattr(rep, "_run_fit", fake_fit)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a.yaml").write_text("model: {}\n")
+    folder = tmp_path / "experiments"
+    folder.mkdir()
+    (folder / "source.yaml").write_text("title: source\nruns:\n  - {name: A, configs: [a.yaml]}\n"
+                                        "  - {name: B, configs: [a.yaml], overrides: {model.init_args.beta: 0.5}}\n")
+    (folder / "asked.yaml").write_text(
+        "title: asked online\nruns_from: source\nruns: [B]\neval_seeds: [0, 1, 2]\nevaluations:\n"
+        "  - {suffix: _active, online: {rounds: 20, rules: [action_uniform, top_two], figure: true}}\n"
+        "  - {suffix: _flipped, online: {rounds: 20, labels: flipped}}\n")
+    online = load_table("asked", folder)
+    assert online.runs_from == "source" and [r.name for r in online.runs] == ["B"]
+    assert online.runs[0].setting("model.init_args.beta") == "0.5" and online.runs[0].setting("trainer.x") is None
+    assert online.evaluations == (OnlineEvaluation("_active", ("action_uniform", "top_two"), rounds=20, figure=True),
+                                  OnlineEvaluation("_flipped", labels="flipped", rounds=20))
+    work, out = tmp_path / "work", tmp_path / "out"
+    import icprl_lightning.evaluation.online_command as online_command
+
+    deployed = []
+
+    def fake_deploy(configs, checkpoints, **options):
+        deployed.append((configs, checkpoints, options))
+        return {"configs": [str(c) for c in configs]}
+
+    monkeypatch.setattr(online_command, "evaluate_online", fake_deploy)
+    reproduce(online, [0, 1], jobs=1, work=work, out_dir=out)
+    (configs, checkpoints, first), (_, _, second) = deployed
+    assert configs == [tmp_path / "config.yaml"] and checkpoints == [str(tmp_path / "ckpt" / "B-seed0.ckpt"),
+                                                                               str(tmp_path / "ckpt" / "B-seed1.ckpt")]
+    assert (first["rules"], first["labels"], first["seeds"], first["rounds"], first["out"]) == (
+        ("action_uniform", "top_two"), "own", (0, 1, 2), 20, out / "asked_active")  # the figure: out writes it
+    assert (second["labels"], second["out"]) == ("flipped", None)
+    assert json.loads((out / "asked_flipped.json").read_text()) == {"configs": [str(configs[0])]}
+    assert sorted(p.name for p in (work / "source").glob("*.json")) == ["B-seed0.json", "B-seed1.json"]
+    assert not (work / "asked").exists()
+    reproduce(load_table("source", folder), [0, 1], jobs=1, work=work, out_dir=out, dry_run=True, only=["B"])
+    assert "icprl fit" not in capsys.readouterr().out  # the source table finds the online table's fits
+
+    calls = []
+
+    def fake_online(table, evaluation, checkpoints, out_dir):
+        calls.append((evaluation.suffix, evaluation.labels, sorted(checkpoints)))
+        return {"out": str(out_dir / f"{table.name}{evaluation.suffix}.json")}
+
+    monkeypatch.setattr(rep, "evaluate_online", fake_online)
+    summary = reproduce(online, [0, 1], jobs=1, work=work, out_dir=out)
+    assert calls == [("_active", "own", ["B"]), ("_flipped", "flipped", ["B"])]
+    assert [e["online"]["out"] for e in summary["evaluations"]] == [str(out / "asked_active.json"),
+                                                                    str(out / "asked_flipped.json")]
+
+
+def test_the_online_tables_deploy_the_runs_their_results_came_from(tables):
+    """Each online table's run is the very run (same fit command) of the table it names, and writes the files
+    docs/results holds for it."""
+    online = {name: table for name, table in tables.items() if table.runs_from}
+    assert set(online) == {"online_bandit", "online_darkroom_uniform", "online_darkroom_uniform_next",
+                           "online_darkroom_paper"}
+    for table in online.values():
+        source = {run.name: run for run in tables[table.runs_from].runs}
+        assert all(run == source[run.name] for run in table.runs)
+        assert all(isinstance(e, OnlineEvaluation) for e in table.evaluations)
+        for evaluation in table.evaluations:
+            assert (REPO / "docs/results" / f"{table.name}{evaluation.suffix}.json").exists(), evaluation
