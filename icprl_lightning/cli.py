@@ -51,7 +51,7 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
                "a run's learning curves and last held-out table, from its directory, no server needed"),
     "checkpoint": ("icprl_lightning.checkpoints", "main", "verify checkpoints, or stamp trusted old ones"),
     "oracle": ("", "", "train the Meta-World Reach SAC oracle, or export its weights for data generation"),
-    "baseline": ("", "", "RL from scratch on each held-out task: SAC (Meta-World Reach), DQN (DarkRoom)"),
+    "baseline": ("", "", "RL from scratch per held-out task (SAC, DQN); tuning of the dueling-bandit baselines"),
     "analyze": ("", "", "measurements beside the tables: reward models, DIT's advantages, label ceiling, checksums"),
 }
 # group -> verb -> (module, function, one line of help)
@@ -67,6 +67,8 @@ GROUPS: dict[str, dict[str, tuple[str, str, str]]] = {
                 "SB3 SAC from scratch on each held-out Meta-World Reach goal"),
         "dqn": ("icprl_lightning.baselines.dqn_from_scratch", "main",
                 "SB3 DQN from scratch on each held-out DarkRoom goal"),
+        "tune-bandit": ("icprl_lightning.families.dueling_bandit.tuning", "main",
+                        "tune the feature-aware dueling-bandit baselines on training problems only"),
     },
     "analyze": {
         "reward-quality": ("icprl_lightning.evaluation.reward_quality", "main",

@@ -9,11 +9,13 @@ is checked on the parsed config, however it was spelled (``ICPRLCLI._parse_ckpt_
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import inspect
 import os
 import re
 import sys
+import typing
 import warnings
 from typing import Any
 
@@ -64,6 +66,21 @@ def _class_arguments(class_path: str) -> list[str]:
     return names
 
 
+def _group_keys(class_path: str, group: str) -> list[str]:
+    """The keys of a class's dataclass-typed ``__init__`` argument ``group`` (e.g. a method's ``backbone``)."""
+    module, _, name = class_path.rpartition(".")
+    cls = getattr(sys.modules.get(module), name, None)
+    for klass in cls.__mro__ if isinstance(cls, type) else ():
+        if "__init__" in vars(klass):
+            try:
+                hint = typing.get_type_hints(klass.__init__).get(group)
+            except Exception:  # an annotation that does not resolve outside type checking
+                continue
+            if dataclasses.is_dataclass(hint):
+                return [f.name for f in dataclasses.fields(hint)]
+    return []
+
+
 def _option_names(parser: Any) -> list[str]:
     """Every ``--key`` a (sub)command parser accepts, nested groups included."""
     names = []
@@ -91,6 +108,12 @@ def summarize_parse_error(message: str, parser: Any) -> str:
             names = [n for n in dir(module) if isinstance(getattr(module, n, None), type)] if module else []
             return (f"{'.'.join(keys[:1] or ['class_path'])}: {m.group(1)} has no class {m.group(2)!r}"
                     f"{_close(m.group(2), names)}")
+        nested = re.search(r"Group '([^']+)' does not accept option '([^']+)'", line) or (
+            classes and re.match(r"[Uu]nrecognized arguments: --([^=\s]+)\.([^.=\s]+)", line))
+        if nested:  # a key inside a dataclass argument, e.g. model.init_args.backbone.n_layers
+            group, option = nested.groups()
+            key = ".init_args.".join([*keys, group]) + f".{option}"
+            return f"{key}: {group} has no key {option!r}{_close(option, _group_keys(classes[-1], group))}"
         if m := re.match(r"[Uu]nrecognized arguments: (\S+)", line):
             option = m.group(1).split("=", 1)[0]
             return f"unknown option {option}{_close(option, _option_names(parser))}"
@@ -100,6 +123,8 @@ def summarize_parse_error(message: str, parser: Any) -> str:
     expected = [m.group(1) for line in lines if (m := re.search(r"Expected a <class '([^']+)'>", line))]
     expected = [e for e in expected if e != "NoneType"]
     if keys and expected:
+        if nested_arg := re.fullmatch(r"NestedArg\(key='[^']*', val='(.*)'\)", given or ""):  # inside an argument
+            return f"{'.init_args.'.join(keys)}: expected {' or '.join(expected)}, got {nested_arg.group(1)!r}"
         return f"{keys[-1]}: expected {' or '.join(expected)}, got {given!r}"
     detail = next((line for line in reversed(lines) if not line.startswith(("Given value", "Subtypes", "- Expected"))),
                   lines[-1] if lines else message)
@@ -115,15 +140,33 @@ def _verified_sizes_fit(model: L.LightningModule, ckpt: dict, path: str) -> None
              if stored[k].shape != here[k].shape]
     if not (missing or unexpected or wrong):
         return
-    hp = ckpt.get("hyper_parameters", {})
-    differ = [f"{k} {hp[k]!r} vs {model.hparams[k]!r}" for k in ("state_dim", "action_dim", "discrete", "max_context",
-                                                               "n_layer", "n_embd", "n_head")
-              if k in hp and k in model.hparams and hp[k] != model.hparams[k]]
+    from icprl_lightning.checkpoints import hyperparameters
+
+    def sizes(hparams: dict) -> dict[str, Any]:  # the data's sizes and the backbone's, flat (backbone.n_layer)
+        backbone = hparams.get("backbone") if isinstance(hparams.get("backbone"), dict) else {}
+        return {**{k: hparams[k] for k in ("state_dim", "action_dim", "discrete", "max_context") if k in hparams},
+                **{f"backbone.{k}": v for k, v in backbone.items() if k != "dropout"}}
+
+    stored_sizes, here_sizes = sizes(hyperparameters(ckpt)), sizes(dict(model.hparams))
+    differ = [f"{k} {stored_sizes[k]!r} vs {here_sizes[k]!r}" for k in stored_sizes
+              if k in here_sizes and stored_sizes[k] != here_sizes[k]]
     what = (f"{wrong[0][0]} is {list(wrong[0][1])} in the checkpoint, {list(wrong[0][2])} here" if wrong
             else f"weights {', '.join((missing or unexpected)[:2])} {'missing from' if missing else 'not in'} "
                  "the checkpoint" if missing else f"the checkpoint has weights this model lacks ({unexpected[0]})")
     raise CLIError(f"ckpt_path {path} does not fit the model this config builds: {what}"
                    + (f" (checkpoint vs config: {'; '.join(differ)})" if differ else ""))
+
+
+# What every config's trainer starts from (configs/trainer/cpu.yaml spells it out; a config or a later
+# ``--trainer FILE`` such as configs/trainer/gpu.yaml or ddp.yaml overrides it): one CPU process, run directories
+# under runs/, and a W&B logger (offline unless WANDB_MODE says otherwise) whose files land in the run directory.
+TRAINER_DEFAULTS = {
+    "accelerator": "cpu",
+    "devices": 1,
+    "default_root_dir": "runs",
+    "logger": {"class_path": "lightning.pytorch.loggers.WandbLogger",
+               "init_args": {"project": "icprl", "save_dir": "runs"}},
+}
 
 
 class ICPRLCLI(LightningCLI):
@@ -236,8 +279,8 @@ def run_cli(args: list[str], run: bool = True) -> ICPRLCLI:
                     save_config_callback=SaveConfigToRun,
                     # the DataModule shards its rows itself under several processes (data/datamodule.py)
                     # Lightning's bar only in a terminal: in a log, TrainingProgress prints plain lines instead
-                    trainer_defaults={"callbacks": default_callbacks(), "use_distributed_sampler": False,
-                                      "enable_progress_bar": is_terminal()},
+                    trainer_defaults={**TRAINER_DEFAULTS, "callbacks": default_callbacks(),
+                                      "use_distributed_sampler": False, "enable_progress_bar": is_terminal()},
                     args=args, run=run, parser_kwargs=PARSER_KWARGS)
 
 

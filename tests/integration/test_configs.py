@@ -30,10 +30,11 @@ BASES = sorted(p.relative_to(REPO).as_posix() for p in REPO.glob("configs/*.yaml
 OVERLAYS = sorted(p.relative_to(REPO).as_posix() for p in REPO.glob("configs/paper/*.yaml"))
 # A DataModule over recorded data reads its dataset when built (there is no generator): these configs are
 # instantiated on an imported dataset by the test named here.
-NEEDS_RECORDED_DATA = {"configs/recorded_icpo.yaml": "tests/data/test_recorded_data.py::test_import_fit_icpo_and_deploy"}
+NEEDS_RECORDED_DATA = {
+    "configs/recorded_icpo.yaml": "tests/data/test_recorded_data.py::test_import_fit_icpo_and_deploy"}
 # ICRG reads its stage-1 checkpoint when built; an architecture instead lets it build without the file.
 NO_CHECKPOINT = ["--model.init_args.reward_gen_hparams",
-                 json.dumps({"n_layer": 1, "n_embd": 8, "n_head": 1, "max_context": 1000, "dropout": 0.0})]
+                 json.dumps({"backbone": {"n_layer": 1, "n_embd": 8, "n_head": 1}, "max_context": 1000})]
 
 
 def base_of(overlay: str) -> str:
@@ -121,10 +122,20 @@ def test_overlay_stacks_on_its_base(overlay, monkeypatch, tmp_path):
         c["class_path"] for c in base_written["trainer"]["callbacks"]]
     # ... every value the overlay writes is in the resolved config ...
     for path, value in leaves(written):
+        if isinstance(value, str) and value.endswith(".yaml"):  # a config group's file, e.g. the backbone
+            held = lookup(cli.config, path)
+            value = yaml.safe_load(((REPO / overlay).parent / value).read_text())
+            assert {k: held[k] for k in value} == value, (overlay, ".".join(map(str, path)))
+            continue
         assert lookup(cli.config, path) == value, (overlay, ".".join(map(str, path)))
     # ... and reached the instances
     for key, value in written["model"]["init_args"].items():
-        assert cli.model.hparams[key] == value, (overlay, key)
+        held = cli.model.hparams[key]
+        if isinstance(value, str) and value.endswith(".yaml"):
+            value = yaml.safe_load(((REPO / overlay).parent / value).read_text())
+        if isinstance(value, dict):  # a dataclass argument (the backbone): the keys the overlay writes
+            held = {k: held[k] for k in value}
+        assert held == value, (overlay, key)
     items = written["trainer"].get("callbacks")
     for item, base_item in zip(items or [], base_written["trainer"]["callbacks"] if items else [], strict=True):
         callback = next(c for c in cli.trainer.callbacks if type(c) is resolve(base_item["class_path"]))

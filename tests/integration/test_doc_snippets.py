@@ -1,7 +1,7 @@
 """Every runnable code block of ``README.md`` and ``docs/**/*.md`` runs exactly as printed.
 
 A document's fenced blocks run in order, in one scratch directory per document (the repository's
-``configs/``, ``scripts/`` and ``benchmarks/`` linked into it, so commands written for the repository root
+``configs/`` and ``benchmarks/`` linked into it, so commands written for the repository root
 work), with ``OMP_NUM_THREADS=1``, ``WANDB_MODE=disabled`` and the virtualenv's ``bin`` first on ``PATH``:
 
 * ```` ```python ```` blocks run in this process, in one namespace per document (``__name__ == "__main__"``,
@@ -40,7 +40,7 @@ from factories import REPO, cli_data_args
 
 DOCUMENTS = [REPO / "README.md", *sorted((REPO / "docs").rglob("*.md"))]
 RUN_LANGUAGES = {"python": "python", "bash": "bash", "sh": "bash", "shell": "bash"}
-LINKED = ("configs", "scripts", "benchmarks")
+LINKED = ("configs", "benchmarks")
 FENCE = re.compile(r"^```\s*([\w+-]*)\s*$")
 DIRECTIVE = re.compile(r"^<!--\s*(not run|file|expect|setup)\s*(?::\s*(.*?))?\s*-->$")
 BLOCK_TIMEOUT = 300  # seconds per bash block: the docs' runnable commands take well under a minute

@@ -77,7 +77,7 @@ def test_two_runs_of_one_config_get_two_run_directories(logger, tmp_path, monkey
     assert len([p for p in (cwd / "data").iterdir() if p.name.startswith("darkroom")]) == 1
     # each run directory holds its own config and checkpoint, none overwritten by the other run
     for run_dir in run_dirs:
-        assert yaml.safe_load((run_dir / "config.yaml").read_text())["model"]["init_args"]["n_embd"] == 16
+        assert yaml.safe_load((run_dir / "config.yaml").read_text())["model"]["init_args"]["backbone"]["n_embd"] == 16
 
 
 def test_fast_dev_run_leaves_nothing_in_the_working_directory(tmp_path, monkeypatch, capsys):
@@ -108,7 +108,7 @@ def test_icrg_pipeline_takes_stage_one_checkpoint_by_path(logger, tmp_path, monk
     cli = run_cli(["fit", "--config", str(REPO / "configs/icrg_darkroom.yaml"), *common,
                    "--model.init_args.reward_gen_checkpoint", str(best)])
     assert cli.trainer.state.finished and cli.trainer.global_step == 2
-    assert cli.model.hparams.reward_gen_hparams["n_embd"] == 16
+    assert cli.model.hparams.reward_gen_hparams["backbone"]["n_embd"] == 16
     stage2 = Path(_printed(capsys.readouterr().out, "run directory"))
     assert stage2 != best.parent.parent and (stage2 / "config.yaml").is_file()
     assert _listing(tmp_path / "stage1") == [] and _listing(tmp_path / "stage2") == []

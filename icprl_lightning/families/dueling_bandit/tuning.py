@@ -9,7 +9,7 @@ contexts, the pretraining distribution: the weak regret of the baseline's duel a
 averaged over h = 1..``horizon`` (the "AUC" of ``evaluation.duels.summarize_regret``). Every grid point sees
 the same contexts and the same learner seed.
 
-    python -m icprl_lightning.families.dueling_bandit.tuning --problems 300 --horizon 50 --seed 0
+    icprl baseline tune-bandit --problems 300 --horizon 50 --seed 0
 
 prints each grid point's score, the choice, and, on the same contexts, DTS and the Bayes reference
 (``bayes.BayesReference``, the floor no learner beats in expectation) with a check of its Laplace
@@ -114,7 +114,7 @@ def dts_score(family: LinearDuelingBanditFamily, theta: np.ndarray, context: dic
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="icprl baseline tune-bandit", description=__doc__.split("\n\n")[0])
     parser.add_argument("--problems", type=int, default=300, help="training problems (the first of the split)")
     parser.add_argument("--horizon", type=int, default=50, help="comparisons per uniform-pair context")
     parser.add_argument("--seed", type=int, default=0, help="contexts and learners' random streams")
