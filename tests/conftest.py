@@ -6,7 +6,7 @@ import os
 
 import pytest
 import torch
-from factories import darkroom_data  # noqa: E402
+from factories import TPRL_TINY, darkroom_data  # noqa: E402
 
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 
@@ -48,5 +48,21 @@ def tiny_ipref(data_root) -> PreferenceDataModule:
 @pytest.fixture(scope="session")
 def tiny_reward(data_root) -> PreferenceDataModule:
     dm = darkroom_data(context_kind="reward", root_dir=data_root, query_labels=True, **TINY)
+    dm.prepare_data()
+    return dm
+
+
+# ---- tiny DarkRoom T-PRL data, shared by the data and method tests ------------------------------------
+
+@pytest.fixture(scope="module")
+def tprl(data_root) -> PreferenceDataModule:
+    dm = darkroom_data("trajectory_preference", root_dir=data_root, pairs=True, query_labels=True, **TPRL_TINY)
+    dm.prepare_data()
+    return dm
+
+
+@pytest.fixture(scope="module")
+def tprl_rewards(data_root) -> PreferenceDataModule:
+    dm = darkroom_data(context_kind="reward_trajectory", root_dir=data_root, **TPRL_TINY)
     dm.prepare_data()
     return dm

@@ -187,3 +187,8 @@ def served_fields(batch) -> set[str]:
         elif value is not None:
             out.add(name)
     return out
+
+
+# tiny DarkRoom T-PRL data (the tprl / tprl_rewards fixtures of conftest.py, and CLI runs on the same sizes)
+TPRL_TINY = dict(trajectories_per_task=3, val_trajectories_per_task=2, eval_contexts_per_task=2,
+                 calibration_episodes=2, progress=False, batch_size=8)

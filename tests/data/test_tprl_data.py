@@ -3,32 +3,17 @@
 import numpy as np
 import pytest
 import torch
-from factories import darkroom_data, served_fields, trajectory_pairs  # noqa: E402
+from factories import served_fields, trajectory_pairs  # noqa: E402
 
 from icprl_lightning import TrajectoryPreferenceContext
 from icprl_lightning.contexts import ActionSpec, context_from_fields
-from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.darkroom.env import step_reward, transition
 from icprl_lightning.models.tokenizers import TrajectoryPreferenceTokenizer
 
 FORBIDDEN = ("reward", "goal", "advantage", "q_value", "value", "return")
-TPRL_TINY = dict(trajectories_per_task=3, val_trajectories_per_task=2, eval_contexts_per_task=2,
-                 calibration_episodes=2, progress=False, batch_size=8)
 
 
-@pytest.fixture(scope="module")
-def tprl(data_root) -> PreferenceDataModule:
-    dm = darkroom_data("trajectory_preference", root_dir=data_root, pairs=True, query_labels=True, **TPRL_TINY)
-    dm.prepare_data()
-    return dm
-
-
-@pytest.fixture(scope="module")
-def tprl_rewards(data_root) -> PreferenceDataModule:
-    dm = darkroom_data(context_kind="reward_trajectory", root_dir=data_root, **TPRL_TINY)
-    dm.prepare_data()
-    return dm
 
 
 def test_labels_follow_bt_on_return_differences():

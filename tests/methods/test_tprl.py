@@ -6,11 +6,10 @@ import pathlib
 import lightning as L
 import pytest
 import torch
-from factories import cli_data_args, darkroom_data  # noqa: E402
+from factories import TPRL_TINY, cli_data_args, darkroom_data  # noqa: E402
 
 from icprl_lightning import RewardTrajectoryContext, TrajectoryPreferenceContext, load_agent
 from icprl_lightning.cli import run_cli
-from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 from icprl_lightning.methods.dit import DITModule, swap_roles, unexplained_variance
 from icprl_lightning.methods.dpt import DP2TModule
 from icprl_lightning.methods.icrg import ICRGAgent, ICRGModule
@@ -29,8 +28,6 @@ from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.samples import RewardTrajectorySamples
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
-TPRL_TINY = dict(trajectories_per_task=3, val_trajectories_per_task=2, eval_contexts_per_task=2,
-                 calibration_episodes=2, progress=False, batch_size=8)
 SIZES = dict(backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100)
 
@@ -111,18 +108,6 @@ def test_gae_spans_the_td_error_and_the_return_to_go():
 
 # ---- modules -------------------------------------------------------------------------------------
 
-@pytest.fixture(scope="module")
-def tprl(data_root) -> PreferenceDataModule:
-    dm = darkroom_data("trajectory_preference", root_dir=data_root, pairs=True, query_labels=True, **TPRL_TINY)
-    dm.prepare_data()
-    return dm
-
-
-@pytest.fixture(scope="module")
-def tprl_rewards(data_root) -> PreferenceDataModule:
-    dm = darkroom_data(context_kind="reward_trajectory", root_dir=data_root, **TPRL_TINY)
-    dm.prepare_data()
-    return dm
 
 
 @pytest.fixture(scope="module")
