@@ -4,11 +4,11 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-# Exact versions of every package `make` installs (the metaworld and dev extras included; the bench
+# Exact versions of every package `make` installs (the metaworld, interop and dev extras included; the bench
 # extra's transformers is not locked). Regenerate with `make lock` after changing a dependency in
 # pyproject.toml, or to move to newer releases; then run `make test` and commit the lock.
 LOCK := requirements.lock
-EXTRAS := metaworld,dev
+EXTRAS := metaworld,interop,dev
 # Lightning/W&B must never try to reach the network from here; tests disable W&B entirely.
 export WANDB_MODE ?= offline
 

@@ -143,7 +143,7 @@ def main() -> None:
     parser.add_argument("--data-config", type=Path, default=Path("configs/icrg_darkroom.yaml"))
     parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
     parser.add_argument("--eval-seeds", type=int, nargs="+", default=[0, 1, 2])
-    # not docs/results/darkroom_tprl.json: that is the output of `icprl reproduce darkroom_tprl`
+    # not docs/results/darkroom_tprl/darkroom_tprl.json: that is the output of `icprl reproduce darkroom_tprl`
     parser.add_argument("--json", type=Path, default=Path("docs/results/darkroom_tprl_60pairs.json"))
     parser.add_argument("--figure", type=Path, default=Path("docs/figures/darkroom_tprl.png"))
     args = parser.parse_args()

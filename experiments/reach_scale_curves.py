@@ -15,8 +15,8 @@ against contexts per training goal, one panel per recipe and context quality, fr
 ``icprl reproduce metaworld_<recipe>_x<k>`` wrote (``docs/results/metaworld_<recipe>_x<k>.json``, greedy).
 
     python experiments/reach_scale_curves.py                      # every table present
-    python experiments/reach_scale_curves.py --out docs/results/metaworld_scale
-    python experiments/reach_scale_curves.py --rows sac:1=docs/results/metaworld_sac_x1_icpo.json:ICPO
+    python experiments/reach_scale_curves.py --out docs/results/metaworld_scale/metaworld_scale
+    python experiments/reach_scale_curves.py --rows sac:1=docs/results/metaworld_sac_x1/metaworld_sac_x1_icpo.json:ICPO
 
 ``--rows RECIPE:K=FILE:METHOD[,METHOD]`` takes those methods' rows and diagnostics from another evaluation's
 JSON (``icprl evaluate --out``) instead of the table's, for a method refitted after its table was made; the
@@ -154,7 +154,7 @@ def figure(tables: dict[str, dict[int, dict]], out: Path) -> None:
 def main(args: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--results", type=Path, default=Path("docs/results"))
-    parser.add_argument("--out", type=Path, default=Path("docs/results/metaworld_scale"))
+    parser.add_argument("--out", type=Path, default=Path("docs/results/metaworld_scale/metaworld_scale"))
     parser.add_argument("--rows", action="append", default=[], metavar="RECIPE:K=FILE:METHOD[,METHOD]",
                         help="take these methods' rows from another evaluation's JSON (repeatable)")
     ns = parser.parse_args(args)

@@ -6,7 +6,7 @@ Asked: 2026-12-02 (the first commit of this investigation, then scripts/sac_from
 Answer (docs/RESULTS.md, "SAC from scratch" (Meta-World Reach, 100 episodes per goal)):
 Within 100 episodes per goal, never. Its deterministic evaluation curve rises to 0.50 normalized at 75
 episodes and falls to 0.14 at 100 (best checkpoint 0.51 ± 0.03 on fresh episodes), below every in-context
-method's medium-context return (0.64–0.75). The figure is docs/results/sac_from_scratch_curve.png.
+method's medium-context return (0.64–0.75). The figure is docs/results/sac_from_scratch/sac_from_scratch_curve.png.
 
 A one-off investigation, kept as it was run: not part of the package, untested, imported by nothing.
 
@@ -14,8 +14,8 @@ SAC from scratch on the held-out Reach goals: normalized evaluation return again
 (issue 13, point 4), beside the zero-shot return of in-context methods, so the reader sees after how many
 episodes of online RL a from-scratch agent would reach what ICPRL gets from a context alone.
 
-    python experiments/sac_from_scratch_curve.py docs/results/sac_from_scratch_metaworld_100ep.json \
-        --zero-shot docs/results/metaworld_sac_x1.json --out docs/results/sac_from_scratch_curve
+    python experiments/sac_from_scratch_curve.py docs/results/sac_from_scratch/sac_from_scratch_metaworld_100ep.json \
+        --zero-shot docs/results/metaworld_sac_x1/metaworld_sac_x1.json --out docs/results/sac_from_scratch/sac_from_scratch_curve
 
 Each evaluation (``eval_curve`` of ``icprl baseline sac``: the deterministic policy
 on fixed-seed episodes every few training episodes) is normalized with its goal's uniform and scripted-expert
@@ -55,7 +55,7 @@ def main(args: list[str] | None = None) -> None:
     parser.add_argument("scratch", type=Path, help="a JSON of `icprl baseline sac`")
     parser.add_argument("--zero-shot", type=Path, default=None, help="a results JSON of icprl evaluate")
     parser.add_argument("--quality", default="medium")
-    parser.add_argument("--out", type=Path, default=Path("docs/results/sac_from_scratch_curve"))
+    parser.add_argument("--out", type=Path, default=Path("docs/results/sac_from_scratch/sac_from_scratch_curve"))
     ns = parser.parse_args(args)
     from matplotlib.figure import Figure
 

@@ -21,7 +21,7 @@ Budget. The paper trains 1,000 episodes (100,000 steps) per goal; the CPU defaul
 (10,000 steps, ≈ 16 s of CPU) per goal on the 20 held-out goals:
 
     icprl baseline dqn --episodes 100 \
-        --out docs/results/dqn_from_scratch_darkroom.json
+        --out docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json
 
 Evaluation uses the greedy policy as a lookup table over the 100 cells (``greedy_table_act``): the same
 actions as ``predict(deterministic=True)`` at one network call per evaluation instead of one per step.
@@ -125,7 +125,7 @@ def main(args: Sequence[str] | None = None) -> Path:
     parser.add_argument("--eval-episodes", type=int, default=10)
     parser.add_argument("--test-episodes", type=int, default=50)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for these MLPs)")
-    parser.add_argument("--out", type=Path, default=Path("docs/results/dqn_from_scratch_darkroom.json"))
+    parser.add_argument("--out", type=Path, default=Path("docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json"))
     ns = parser.parse_args(args)
     torch.set_num_threads(ns.threads)
     family = DarkRoomFamily(seed=ns.family_seed)

@@ -16,7 +16,7 @@ step here (one gradient step per env step, 256×256 networks, one torch thread),
 stated in the output JSON. Run it as
 
     icprl baseline sac --episodes 20 --test-episodes 5 \
-        --out docs/results/sac_from_scratch_metaworld.json
+        --out docs/results/sac_from_scratch/sac_from_scratch_metaworld.json
 
 and pass ``--episodes 1000`` for the paper's budget.
 """
@@ -103,7 +103,7 @@ def main(args: Sequence[str] | None = None) -> Path:
     parser.add_argument("--eval-episodes", type=int, default=2)
     parser.add_argument("--test-episodes", type=int, default=10)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for these MLPs)")
-    parser.add_argument("--out", type=Path, default=Path("docs/results/sac_from_scratch_metaworld.json"))
+    parser.add_argument("--out", type=Path, default=Path("docs/results/sac_from_scratch/sac_from_scratch_metaworld.json"))
     ns = parser.parse_args(args)
     torch.set_num_threads(ns.threads)
     goals = ReachTaskFamily(seed=ns.family_seed).test_goals

@@ -3,7 +3,7 @@
     icprl evaluate --title "DarkRoom I-PRL" --seeds 0 1 \
         --run DPT=configs/dpt_darkroom.yaml:runs/icprl/<id>/checkpoints/last.ckpt \
         --run ICPO=configs/icpo_darkroom.yaml:runs/icprl/<id>/checkpoints/last.ckpt \
-        --baseline "DQN from scratch=docs/results/dqn_from_scratch_darkroom.json"
+        --baseline "DQN from scratch=docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json"
     icprl evaluate --title "Linear dueling bandits" --seeds 0 \
         --run ICPO=configs/icpo_bandit.yaml:runs/icprl/<id>/checkpoints/last.ckpt --out results/bandit
     icprl evaluate online --config CONFIG --ckpt CHECKPOINT ...   (asked online: icprl evaluate online --help)
@@ -140,18 +140,25 @@ def default_out(checkpoint: str) -> Path:
     return out
 
 
-def over_training_seeds(per_seed: list[dict[str, float]]) -> dict[str, Any]:
+def over_training_seeds(per_seed: list[dict[str, Any]]) -> dict[str, Any]:
     """One row from each training seed's held-out means: mean ± sem over seeds, and the seeds' values.
 
-    With a single seed the row is that seed's (its ± is the sem over held-out tasks).
+    With a single seed the row is that seed's (its ± is the sem over held-out tasks). A seed row's
+    ``per_task`` (metric -> per-task values) becomes the row's ``per_task``: metric -> [seed][task], the
+    seeds × tasks matrix that ``reproduce.statistics`` bootstraps.
     """
+    tasks = [seed_row.get("per_task") for seed_row in per_seed]
+    per_seed = [{k: v for k, v in seed_row.items() if k != "per_task"} for seed_row in per_seed]
     if len(per_seed) == 1:
-        return dict(per_seed[0])
-    row: dict[str, Any] = {"training_seeds": len(per_seed), "per_seed": {}}
-    for key in (k for k in per_seed[0] if not k.endswith("_sem")):
-        values = [seed_row[key] for seed_row in per_seed]
-        row[key], row[f"{key}_sem"] = mean_sem(values)
-        row["per_seed"][key] = values
+        row: dict[str, Any] = dict(per_seed[0])
+    else:
+        row = {"training_seeds": len(per_seed), "per_seed": {}}
+        for key in (k for k in per_seed[0] if not k.endswith("_sem")):
+            values = [seed_row[key] for seed_row in per_seed]
+            row[key], row[f"{key}_sem"] = mean_sem(values)
+            row["per_seed"][key] = values
+    if all(t is not None for t in tasks):
+        row["per_task"] = {metric: [t[metric] for t in tasks] for metric in tasks[0]}
     return row
 
 
@@ -164,7 +171,7 @@ def held_out_means(suite, diagnostic: str, checkpoint: str, seeds: list[int], gr
     """
     episodes = rollout_seeds(lambda seed: load_agent(checkpoint, greedy=greedy, seed=seed), suite, seeds,
                              lambda seed: diagnose_suite(suite, diagnostic, seed), env=env)
-    return episode_stats(suite, episodes)
+    return episode_stats(suite, episodes, with_tasks=True)
 
 
 def evaluate_rollouts(dm, checkpoints: list[str], seeds: list[int], greedy: bool | None,
@@ -203,7 +210,8 @@ def evaluate_bandit(dm, checkpoints: list[str], name: str, seeds: list[int], gre
                           for i, c in enumerate(checkpoints)]
         for method in per_checkpoint[0]:
             runs = [p[method] for p in per_checkpoint if method in p]
-            summaries.setdefault(method, {})[suite.source] = over_training_seeds([summarize_regret(c) for c in runs])
+            summaries.setdefault(method, {})[suite.source] = over_training_seeds(
+                [summarize_regret(c, with_tasks=True) for c in runs])
             means = [curve_mean_sem(c) for c in runs]
             mean = np.mean([m for m, _ in means], axis=0)
             sem = means[0][1] if len(runs) == 1 else np.std([m for m, _ in means], axis=0, ddof=1) / np.sqrt(len(runs))

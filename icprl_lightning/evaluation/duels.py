@@ -21,6 +21,7 @@ name (``method_name``: ``ICPOModule`` -> ``icpo``) beside ``dts`` and ``behavior
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -127,9 +128,14 @@ def curve_mean_sem(curve: Tensor) -> tuple[np.ndarray, np.ndarray]:
     return values.mean(axis=0), sem
 
 
-def summarize_regret(curve: Tensor) -> dict[str, float]:
-    """Final (h = H) and mean-over-h weak regret, each with its standard error over problems."""
+def summarize_regret(curve: Tensor, with_tasks: bool = False) -> dict[str, Any]:
+    """Final (h = H) and mean-over-h weak regret, each with its standard error over problems; ``with_tasks``:
+    also, under ``per_task``, each problem's two values (what the bootstrap confidence intervals resample)."""
     values = curve.double().cpu().numpy()
     final, final_sem = mean_sem(values[:, -1])
     auc, auc_sem = mean_sem(values.mean(axis=1))
-    return {"weak_regret": final, "weak_regret_sem": final_sem, "weak_regret_auc": auc, "weak_regret_auc_sem": auc_sem}
+    out: dict[str, Any] = {"weak_regret": final, "weak_regret_sem": final_sem, "weak_regret_auc": auc,
+                           "weak_regret_auc_sem": auc_sem}
+    if with_tasks:
+        out["per_task"] = {"weak_regret": values[:, -1].tolist(), "weak_regret_auc": values.mean(axis=1).tolist()}
+    return out

@@ -109,8 +109,11 @@ def rollout_seeds(make_agent: Callable[[int], AgentLike], suite: EvalSuite, seed
     return {name: np.concatenate(values) for name, values in episodes.items()}
 
 
-def episode_stats(suite: EvalSuite, episodes: dict[str, np.ndarray]) -> dict[str, float]:
+def episode_stats(suite: EvalSuite, episodes: dict[str, np.ndarray], with_tasks: bool = False) -> dict[str, Any]:
     """Mean ± sem over held-out tasks of each per-episode metric (``<name>`` and ``<name>_sem``).
+
+    ``with_tasks``: also ``per_task`` — each metric's per-task means (sorted task ids), the values the
+    bootstrap confidence intervals of ``reproduce.statistics`` resample.
 
     ``episodes`` hold B or n · B values (n seeds, seed-major as ``rollout_seeds`` returns them); each
     task's episodes are averaged first. ``normalized_return`` is computed when missing and normalizable.
@@ -124,9 +127,14 @@ def episode_stats(suite: EvalSuite, episodes: dict[str, np.ndarray]) -> dict[str
         episodes["normalized_return"] = np.concatenate([suite.normalize(r)
                                                         for r in np.split(episodes["return"], n_seeds)])
     tasks = np.tile(suite.task_index, n_seeds)
-    out: dict[str, float] = {}
+    out: dict[str, Any] = {}
+    per_task: dict[str, list[float]] = {}
     for name, values in episodes.items():
-        out[name], out[f"{name}_sem"] = mean_sem(per_task_mean(values, tasks))
+        task_means = per_task_mean(values, tasks)
+        out[name], out[f"{name}_sem"] = mean_sem(task_means)
+        per_task[name] = task_means.tolist()
+    if with_tasks:
+        out["per_task"] = per_task
     return out
 
 

@@ -17,7 +17,7 @@ them. Its file says what ``Table`` holds; only ``title`` and ``runs`` are requir
     evaluations: [{suffix: "", act: greedy}, {suffix: _sampled, act: sample}]   # the default
     contexts: [own, random_labels, flipped_labels, other_task]                  # the default
     eval_seeds: [0, 1]                                                          # the default
-    baselines: {DQN from scratch: docs/results/dqn_from_scratch_darkroom.json}
+    baselines: {DQN from scratch: docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json}
     figure: lambda_beta                              # a table-specific figure (figures.FIGURES)
 
 ``overrides`` is a mapping of dotted keys or a list of them, passed in order as on a command line (a later value

@@ -12,20 +12,20 @@ configs and overrides) and the evaluations made of them. Every run is trained on
 (``--seed_everything``) with ``icprl fit`` in its own process, at most ``--jobs`` at a time
 (``OMP_NUM_THREADS`` = cores / jobs each), its log in ``<work>/<table>/<run>-seed<s>.log``; then
 ``icprl evaluate`` deploys each run's last checkpoints (all its training seeds) on the held-out contexts with
-the context diagnostics, greedy and sampled, and writes ``docs/results/<table>[_sampled]`` (``.json``, ``.md``,
+the context diagnostics, greedy and sampled, and writes ``docs/results/<table>/<table>[_sampled]`` (``.json``, ``.md``,
 ``.png``, ``_diagnostics.png``); an online evaluation deploys them asking for comparisons as they act
 (``evaluate_online``). Training seeds share the dataset (the family's seed fixes it); they differ in
 initialization, shuffling and the pairs drawn. A table whose ``runs_from`` names another trains (or finds)
 that table's fits in its folder, ``<work>/<other table>/``.
 
 Each fit logs to CSV; the rollout callback's held-out returns per epoch become ``learning_curves`` in
-the summary and ``docs/results/<table>_curve.png``. A finished fit records its checkpoint in
+the summary and ``docs/results/<table>/<table>_curve.png``. A finished fit records its checkpoint in
 ``<run>-seed<s>.json`` with a digest of its inputs (the fit command and the text of its config files);
 running the command again skips a fit whose inputs are unchanged, so an interrupted reproduction resumes
 where it stopped, and retrains one whose command or configs changed since, or whose recorded checkpoint
 file is gone (``--refit`` trains all again). Every record is read before the first fit starts: a damaged
 or foreign one (not JSON, or not a record's shape) is one error naming it, never a traceback mid-run.
-The command prints, and writes to ``docs/results/<table>_reproduce.json``, each stage's wall-clock
+The command prints, and writes to ``docs/results/<table>/<table>_reproduce.json``, each stage's wall-clock
 seconds, the checkpoints and the exact commands.
 """
 
@@ -301,7 +301,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--jobs", type=int, default=2, help="fits at a time (each gets cores / jobs threads)")
     parser.add_argument("--threads", type=int, help="torch threads per fit (default: cores / jobs)")
     parser.add_argument("--work", default="runs/reproduce", help="fit logs, run directories and records")
-    parser.add_argument("--out", default="docs/results", help="where the tables and figures go")
+    parser.add_argument("--out", default="docs/results", help="where the tables and figures go: one folder per "
+                        "table, <out>/<table>/")
     parser.add_argument("--refit", action="store_true", help="train again even where a fit is recorded")
     parser.add_argument("--dry-run", action="store_true", help="print the fit commands, run nothing")
     parser.add_argument("--only", nargs="+", metavar="RUN", help="train only these runs (and the earlier stages "
@@ -320,10 +321,10 @@ def main(argv: list[str] | None = None) -> dict:
             return {}
         table = load_table(args.table)
         if args.redraw:
-            sources = redraw(table, Path(args.out))
+            sources = redraw(table, Path(args.out) / table.name)
             print(f"{table.name}: figures redrawn from {', '.join(map(str, sources))}", flush=True)
             return {}
-        return reproduce(table, args.seeds, args.jobs, Path(args.work), Path(args.out), args.refit, args.dry_run,
+        return reproduce(table, args.seeds, args.jobs, Path(args.work), Path(args.out) / table.name, args.refit, args.dry_run,
                          args.threads, args.only)
     except (RecordError, TableError) as e:
         parser.exit(2, f"{parser.prog}: error: {e}\n")

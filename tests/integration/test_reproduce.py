@@ -295,11 +295,12 @@ def test_redraw_draws_every_figure_from_the_outputs_alone(tables, tmp_path):
     table = tables["darkroom_dit_steps"]
     with pytest.raises(FileNotFoundError, match="run `icprl reproduce darkroom_dit_steps` first"):
         main([table.name, "--redraw", "--out", str(tmp_path)])
-    results = REPO / "docs" / "results"
+    results = REPO / "docs" / "results" / table.name
+    (tmp_path / table.name).mkdir()
     for suffix in ("", "_sampled", "_reproduce"):
-        shutil.copy(results / f"{table.name}{suffix}.json", tmp_path)
+        shutil.copy(results / f"{table.name}{suffix}.json", tmp_path / table.name)
     main([table.name, "--redraw", "--out", str(tmp_path)])
-    drawn = {p.name for p in tmp_path.glob("*.png")}
+    drawn = {p.name for p in (tmp_path / table.name).glob("*.png")}
     assert drawn == {f"{table.name}{s}.png" for s in ("", "_diagnostics", "_sampled", "_sampled_diagnostics", "_curve")}
 
 
@@ -381,4 +382,4 @@ def test_the_online_tables_deploy_the_runs_their_results_came_from(tables):
         assert all(run == source[run.name] for run in table.runs)
         assert all(isinstance(e, OnlineEvaluation) for e in table.evaluations)
         for evaluation in table.evaluations:
-            assert (REPO / "docs/results" / f"{table.name}{evaluation.suffix}.json").exists(), evaluation
+            assert (REPO / "docs/results" / table.name / f"{table.name}{evaluation.suffix}.json").exists(), evaluation
