@@ -3,6 +3,14 @@
     icprl import prefs.npz --out data/my_prefs --kind step_preference --n-actions 5 [--val-fraction 0.1]
     icprl import prefs_dir/ --out data/my_prefs --kind trajectory_preference --action-dim 4 [--seed 0]
 
+    icprl import exports/darkroom_hf --format hf|parquet|minari --out data/darkroom   (an `icprl export-data` export)
+    icprl import rows.parquet --format trl --kind step_preference --n-actions 5 --out data/rows
+    icprl import pairs.npz --format bpref --n-actions 5 [--ties drop] [--label-convention bpref] --out data/pairs
+
+``--format`` other than ``npz`` (the default) is ``data/interop``: an export is rebuilt byte for byte from the
+manifest it carries; TRL chosen/rejected rows and segment-pair label arrays are converted to the arrays below
+and then imported as they are (``docs/data_formats.md``).
+
 ``SOURCE`` is an ``.npz`` file or a directory of ``<field>.npy`` files, named as the context's fields
 (``contexts.py``; the table is in ``docs/recorded_data.md``). Every field is checked before anything is
 written — presence, shape, dtype, label values, action range, NaN/inf, magnitude — and a bad one is a
@@ -254,13 +262,16 @@ def _guard_out_dir(out: Path, source: Path | None, overwrite: bool) -> None:
 def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: str | Path,
                        kind: str = "step_preference", n_actions: int | None = None, action_dim: int | None = None,
                        val_fraction: float = 0.1, seed: int = 0, overwrite: bool = False,
-                       max_source_bytes: int = MAX_SOURCE_BYTES) -> ImportSummary:
+                       max_source_bytes: int = MAX_SOURCE_BYTES, source_rows: np.ndarray | None = None,
+                       origin: Mapping[str, Any] | None = None) -> ImportSummary:
     """Check ``source`` (a file, directory or dict of arrays), convert it and write it to ``out_dir``.
 
     Exactly one of ``n_actions`` (discrete actions, indices in [0, n_actions)) and ``action_dim``
     (continuous action vectors) is given. Raises ``ValueError`` naming the first bad field (or file),
     ``OSError`` (``io.StorageError``) naming the path when reading or writing fails (a full disk: "no
-    space left on <out_dir>", with nothing left behind).
+    space left on <out_dir>", with nothing left behind). ``source_rows`` ([N]) is what ``source_row`` records
+    for each array row (default: the row itself), for arrays converted from another format's rows; ``origin``
+    (that format, its path, what was dropped) is kept in the manifest's info.
     """
     if (n_actions is None) == (action_dim is None):
         raise ValueError("pass exactly one of n_actions (discrete actions) and action_dim (continuous actions)")
@@ -277,7 +288,10 @@ def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: s
     n, t, s = arrays[reference].shape
     task = arrays.get(TASK_FIELD)
     rows = dict(zip(("train", "val"), split_rows(task, n, val_fraction, seed), strict=True))
-    splits = {split: {**{k: v[r] for k, v in arrays.items()}, SOURCE_ROW: r.astype(np.int64)}
+    rows_in_source = np.arange(n) if source_rows is None else np.asarray(source_rows, dtype=np.int64)
+    if rows_in_source.shape != (n,):
+        raise ValueError(f"source_rows must have shape [N={n}], got {list(rows_in_source.shape)}")
+    splits = {split: {**{k: v[r] for k, v in arrays.items()}, SOURCE_ROW: rows_in_source[r].astype(np.int64)}
               for split, r in rows.items()}
     config = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": kind, "discrete": actions.discrete,
               "action_size": actions.size, "state_dim": int(s), "context_length": int(t),
@@ -291,30 +305,91 @@ def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: s
         info["tasks"] = {k: int(np.unique(v[TASK_FIELD]).size) for k, v in splits.items()}
         info["rows_per_task"] = {k: _rows_per_task(v[TASK_FIELD]) for k, v in splits.items()}
         info["val_tasks"] = np.unique(splits["val"][TASK_FIELD]).tolist()
+    if origin is not None:
+        info["origin"] = dict(origin)
     write_dataset(out, splits, config, info=info, overwrite=True)
     return ImportSummary(path=out, kind=kind, manifest_info=info)
 
 
-def main(argv: list[str] | None = None) -> ImportSummary:
-    """``icprl import``: see the module docstring."""
-    parser = argparse.ArgumentParser(prog="icprl import", description="Check recorded preference arrays and "
-                                     "write them as an icprl dataset (format: docs/recorded_data.md).")
-    parser.add_argument("source", help="an .npz file or a directory of <field>.npy files")
+FORMATS = ("npz", "hf", "parquet", "minari", "trl", "bpref")
+EXPORT_FORMATS = ("hf", "parquet", "minari")  # `icprl export-data` exports: rebuilt exactly, with kind and actions
+
+
+def _import_export(fmt: str, source: str, out: str, overwrite: bool) -> str:
+    """Rebuild an `icprl export-data` export (``data/interop``); the one-line summary."""
+    from icprl_lightning.data.interop import import_export
+
+    path = import_export(fmt, source, out, overwrite=overwrite)
+    return f"rebuilt the exported dataset {source} ({fmt}) into {path}; every file matches its exported SHA-256"
+
+
+def _foreign_arrays(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, Any], str]:
+    """(arrays, source row of each, origin, kind) of TRL rows or segment-pair label arrays (``data/interop``)."""
+    from icprl_lightning.data.interop import preference_rows
+
+    origin: dict[str, Any] = {"format": args.format, "source": str(args.source)}
+    if args.format == "trl":
+        if args.kind is None:
+            raise ValueError(f"--format trl needs --kind ({' or '.join(preference_rows.ROW_COLUMNS)})")
+        arrays, rows = preference_rows.trl_arrays(preference_rows.read_table(args.source), args.kind, args.seed)
+        return arrays, rows, origin, args.kind
+    if args.kind not in (None, "trajectory_preference"):
+        raise ValueError(f"--format bpref imports segment pairs as trajectory_preference, not --kind {args.kind}")
+    arrays, rows, dropped = preference_rows.label_arrays(read_source(args.source, args.max_source_bytes),
+                                                         args.label_convention, args.ties)
+    origin.update(label_convention=args.label_convention, ties=args.ties, ties_dropped=dropped)
+    return arrays, rows, origin, "trajectory_preference"
+
+
+def main(argv: list[str] | None = None) -> ImportSummary | str:
+    """``icprl import``: see the module docstring; ``--format`` other than npz: ``data/interop``."""
+    parser = argparse.ArgumentParser(
+        prog="icprl import", description="Check recorded preference arrays and write them as an icprl dataset "
+        "(format: docs/recorded_data.md), or bring back an `icprl export-data` export, or import TRL chosen/rejected "
+        "rows or segment-pair label arrays (docs/data_formats.md).")
+    parser.add_argument("source", help="an .npz file or a directory of <field>.npy files; with --format: the export "
+                        "directory, the TRL table (Parquet file or save_to_disk directory) or the label arrays")
     parser.add_argument("--out", required=True, help="the dataset directory to write")
-    parser.add_argument("--kind", required=True, choices=sorted(KINDS))
-    actions = parser.add_mutually_exclusive_group(required=True)
+    parser.add_argument("--format", choices=FORMATS, default="npz",
+                        help="npz: recorded arrays (default); hf|parquet|minari: an export of `icprl export-data`, "
+                        "rebuilt byte for byte; trl: chosen/rejected rows; bpref: segment pairs with labels")
+    parser.add_argument("--kind", choices=sorted(KINDS), help="the context kind (npz, trl; bpref: trajectory pairs)")
+    actions = parser.add_mutually_exclusive_group()
     actions.add_argument("--n-actions", type=int, help="discrete actions: indices in [0, n_actions)")
     actions.add_argument("--action-dim", type=int, help="continuous actions: vectors of this size")
     parser.add_argument("--val-fraction", type=float, default=0.1, help="share of the tasks held out for val")
-    parser.add_argument("--seed", type=int, default=0, help="seeds the train/val task split")
+    parser.add_argument("--seed", type=int, default=0, help="seeds the train/val task split (and a TRL pair's order)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing icprl dataset at --out")
     parser.add_argument("--max-source-bytes", type=int, default=MAX_SOURCE_BYTES,
                         help="refuse sources whose arrays declare more bytes than this (default: 8 GiB)")
+    parser.add_argument("--ties", choices=("refuse", "drop"), default="refuse",
+                        help="bpref: a tie (0.5) is refused (default) or its row dropped; no method trains on 0.5")
+    parser.add_argument("--label-convention", choices=("imitation", "bpref"), default="imitation",
+                        help="bpref: imitation (label = P(segment 1 preferred)) or bpref (1 = segment 2 preferred)")
     args = parser.parse_args(argv)
+    if args.format in EXPORT_FORMATS:
+        given = [flag for flag, value in (("--kind", args.kind), ("--n-actions", args.n_actions),
+                                          ("--action-dim", args.action_dim)) if value is not None]
+        if given:
+            parser.error(f"{', '.join(given)} not used with --format {args.format}: the export carries its kind and "
+                         "actions")
+        try:
+            summary = _import_export(args.format, args.source, args.out, args.overwrite)
+        except (ValueError, OSError, DatasetError) as e:
+            parser.exit(2, f"icprl import: error: {e}\n")
+        print(summary)
+        return summary
+    if args.n_actions is None and args.action_dim is None:
+        parser.error("one of the arguments --n-actions --action-dim is required")
+    if args.format == "npz" and args.kind is None:
+        parser.error("the following arguments are required: --kind")
     try:
-        summary = import_preferences(args.source, args.out, args.kind, n_actions=args.n_actions,
-                                     action_dim=args.action_dim, val_fraction=args.val_fraction, seed=args.seed,
-                                     overwrite=args.overwrite, max_source_bytes=args.max_source_bytes)
+        source, rows, origin, kind = args.source, None, None, args.kind
+        if args.format in ("trl", "bpref"):
+            source, rows, origin, kind = _foreign_arrays(args)
+        summary = import_preferences(source, args.out, kind, n_actions=args.n_actions, action_dim=args.action_dim,
+                                     val_fraction=args.val_fraction, seed=args.seed, overwrite=args.overwrite,
+                                     max_source_bytes=args.max_source_bytes, source_rows=rows, origin=origin)
     except (ValueError, OSError, DatasetError) as e:  # each one line naming the field, file or path
         parser.exit(2, f"icprl import: error: {e}\n")
     print(summary)
