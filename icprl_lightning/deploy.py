@@ -2,6 +2,7 @@
 
     from icprl_lightning import load_agent
     agent = load_agent("run/checkpoints/last.ckpt")   # any method's checkpoint
+    agent = load_agent("bandit-icpo")                 # or a model directory, or a shipped model's name
     agent.obs_dim, agent.action_spec, agent.max_context, agent.context_kind   # what it takes (below)
     agent.reset(context)                              # typed, batched context for B tasks
     action = agent.act(obs)                           # obs [B, S] -> [B] (discrete) | [B, A]
@@ -185,15 +186,18 @@ def load_agent(checkpoint: str | Path, greedy: bool | None = None, use_cache: bo
                map_location: str | torch.device = "cpu", compile: bool = False):
     """Load any icprl_lightning method's checkpoint as a deployable agent.
 
+    ``checkpoint`` is a ``.ckpt`` file, a model directory in the Hugging Face layout (``icprl export``), or the
+    short name of a model shipped with the package (``"bandit-icpo"``; ``hub.shipped_models()`` lists them).
     ``greedy`` None keeps the method's own default (argmax / Gaussian mean for DPT, DP²T and ICPO;
     sampling for ICRG, whose advantage-weighted policy collapses at its argmax); True or False forces it.
-    The file is read as untrusted (``checkpoints.py``): ``weights_only=True``, the class from the allow-list
-    of this package's methods, the stored checksum verified; any problem is one ``ValueError`` (or
-    ``FileNotFoundError``) naming the path. ``compile`` runs each act()'s query step through ``torch.compile``
-    (``Agent``): worth its one-time compile for many episodes of small models.
+    Either is read as untrusted (``checkpoints.py``, ``hub.py``): a ``.ckpt`` with ``weights_only=True``, a
+    directory's tensors with ``safetensors``; the class from the allow-list of this package's methods, the stored
+    checksums verified; any problem is one ``ValueError`` (or ``FileNotFoundError``) naming the path.
+    ``compile`` runs each act()'s query step through ``torch.compile`` (``Agent``): worth its one-time compile
+    for many episodes of small models.
     """
-    from icprl_lightning.checkpoints import load_module
+    from icprl_lightning.hub import load_model
 
-    module = load_module(checkpoint, map_location=map_location)
+    module = load_model(checkpoint, map_location=map_location)
     options = {} if greedy is None else {"greedy": greedy}
     return module.make_agent(use_cache=use_cache, seed=seed, compile=compile, **options)

@@ -6,7 +6,8 @@ A run of ``icprl evaluate`` pairs a config (whose data section names the held-ou
 ``max_context`` = the context length) and checks the context kind (``validation.pairing_errors``); a
 checkpoint evaluated with another config skips both, and would fail late (a shape error deep in a
 rollout) or, worse, run on data it was never trained for. ``run_datamodule`` builds the config's
-DataModule (nothing generated), reads every checkpoint as untrusted (``checkpoints.load_module``) and
+DataModule (nothing generated), reads every checkpoint as untrusted (``hub.load_model``: a ``.ckpt``, a model directory or a shipped
+model's short name) and
 compares the two, so a bandit checkpoint with an MDP config (or the reverse), a RewardGen reward model,
 or a model of another size is one ``ValueError`` naming the run, the checkpoint and the config. The data side is
 read through the data contract (``data_contract.PreferenceData``): its sizes and the evaluations it ``offers``.
@@ -19,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from icprl_lightning.checkpoints import load_module
+from icprl_lightning.hub import load_model
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.data_contract import PreferenceData, missing_members
 from icprl_lightning.validation import consumed_kinds
@@ -78,7 +79,7 @@ def run_datamodule(name: str, config: str, checkpoints: list[str]) -> Preference
                      datamodule.action_spec.size, datamodule.context_length) + ")")
     for checkpoint in checkpoints:
         try:
-            module = load_module(checkpoint)
+            module = load_model(checkpoint)
         except (ValueError, FileNotFoundError) as e:
             raise ValueError(f"--run {name}: {e}") from None
         errors = fit_errors(module, datamodule)

@@ -30,7 +30,7 @@ LAYERS = [
     ("annotators",),                                # who labels a pair (sees the oracle's utilities)
     ("data",),                                      # settings (generators), store, DataModules
     ("models",),                                    # plain nn.Modules
-    ("deploy", "checkpoints", "online"),            # Agent / load_agent; safe checkpoint files (methods by an
+    ("deploy", "checkpoints", "online", "hub"),     # Agent / load_agent; safe checkpoint files (methods by an
                                                     # allow-list of names, imported by importlib, not statically)
     ("methods",),                                   # LightningModules
     ("evaluation",),                                # rollouts and duels through the Agent
