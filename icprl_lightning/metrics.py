@@ -5,7 +5,15 @@ Weak regret (paper, appendix "Dueling Bandit Experiments"): for a duel (a, a') i
     reg(a, a') = min(R*_τ − R_τ(a), R*_τ − R_τ(a')),
 
 where R*_τ = max_a R_τ(a) is the optimal expected reward. It is zero as soon as either arm of the duel
-is optimal. ``WeakRegret`` averages it over every duel it sees.
+is optimal. ``WeakRegret`` averages it over every duel it sees. Strong regret charges both arms,
+
+    reg_strong(a, a') = ((R*_τ − R_τ(a)) + (R*_τ − R_τ(a'))) / 2,
+
+zero only when both arms are optimal. It is the standard definition: the regret of Double Thompson Sampling
+(Wu & Liu 2016) and of the linear dueling-bandit literature (Saha 2021's average regret), Yue et al. 2012's
+strong regret (the sum of the two gaps) halved so it is on one arm's scale like the weak regret, hence in
+[0, max_a (R*_τ − R_τ(a))] and never below the weak regret (Chen & Frazier 2017, "Dueling Bandits with Weak
+Regret", ICML, contrast the two notions).
 """
 
 from __future__ import annotations
@@ -18,6 +26,18 @@ from torchmetrics import Metric
 
 def weak_regret(expected_rewards: Tensor, first: Tensor, second: Tensor) -> Tensor:
     """reg(a, a') per problem: ``expected_rewards [B, A]`` float, ``first``/``second [B]`` long -> ``[B]``."""
+    gap_first, gap_second = _duel_gaps(expected_rewards, first, second)
+    return torch.minimum(gap_first, gap_second)
+
+
+def strong_regret(expected_rewards: Tensor, first: Tensor, second: Tensor) -> Tensor:
+    """reg_strong(a, a') per problem, the average of the two gaps; shapes as ``weak_regret``."""
+    gap_first, gap_second = _duel_gaps(expected_rewards, first, second)
+    return (gap_first + gap_second) / 2
+
+
+def _duel_gaps(expected_rewards: Tensor, first: Tensor, second: Tensor) -> tuple[Tensor, Tensor]:
+    """(R* − R(a), R* − R(a')) per problem, after checking shapes, dtypes and arm indices."""
     if expected_rewards.dim() != 2 or not expected_rewards.is_floating_point():
         raise ValueError(f"expected_rewards must be a float tensor of shape [B, A], "
                          f"got {expected_rewards.dtype} {list(expected_rewards.shape)}")
@@ -31,7 +51,7 @@ def weak_regret(expected_rewards: Tensor, first: Tensor, second: Tensor) -> Tens
     best = expected_rewards.max(dim=-1).values
     reward_first = expected_rewards.gather(-1, first.long().unsqueeze(-1)).squeeze(-1)
     reward_second = expected_rewards.gather(-1, second.long().unsqueeze(-1)).squeeze(-1)
-    return torch.minimum(best - reward_first, best - reward_second)
+    return best - reward_first, best - reward_second
 
 
 class WeakRegret(Metric):

@@ -56,7 +56,7 @@ import numpy as np
 
 from icprl_lightning.deploy import load_agent
 from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, applicable, diagnose_suite
-from icprl_lightning.evaluation.duels import BASELINES, curve_mean_sem, seed_mean_curves, summarize_regret
+from icprl_lightning.evaluation.duels import BASELINES, curve_mean_sem, seed_mean_curves, summarize_regrets
 from icprl_lightning.evaluation.pairing import is_bandit_data, run_datamodule
 from icprl_lightning.evaluation.report import (
     aligned_tables,
@@ -67,6 +67,7 @@ from icprl_lightning.evaluation.report import (
     write_outputs,
 )
 from icprl_lightning.evaluation.rollout import episode_stats, rollout_seeds, suite_env
+from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
 from icprl_lightning.metrics import mean_sem
 
 RESERVED = {"behavior", "optimal", "expert", *BASELINES}
@@ -129,9 +130,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def default_out(checkpoint: str) -> Path:
     """``<run dir>/eval/<date-time>``: the run directory holds ``checkpoints/`` (Lightning's layout), else it is
-    the checkpoint's own directory; a name already taken gets ``-2``, ``-3``, ..."""
+    the checkpoint's own directory; a model directory or a shipped model's name (never written into) gives
+    ``runs/eval/<its name>/<date-time>``. A name already taken gets ``-2``, ``-3``, ..."""
     path = Path(checkpoint)
-    run_dir = path.parent.parent if path.parent.name == "checkpoints" else path.parent
+    if path.suffix != ".ckpt":
+        run_dir = Path("runs") / "eval" / path.name
+    else:
+        run_dir = path.parent.parent if path.parent.name == "checkpoints" else path.parent
     out = base = run_dir / "eval" / time.strftime("%Y%m%d-%H%M%S")
     k = 1
     while out.with_suffix(".json").exists():
@@ -195,49 +200,58 @@ def evaluate_rollouts(dm, checkpoints: list[str], seeds: list[int], greedy: bool
 
 def evaluate_bandit(dm, checkpoints: list[str], name: str, seeds: list[int], greedy: bool | None, baselines: bool,
                     diagnostic: str = "own"
-                    ) -> tuple[dict[str, dict[str, dict[str, float]]], dict[str, dict[str, dict[str, list]]]]:
-    """Per source, per method (``name``, and DTS and behaviour with ``baselines``): summary and per-h curve.
+                    ) -> tuple[dict[str, dict[str, dict[str, Any]]], dict[str, dict[str, dict[str, Any]]]]:
+    """Per source, per method (``name`` and, with ``baselines``, ``duels.BASELINES``: DTS, the feature-aware
+    baselines and the Bayes reference when ``dm.family`` is a ``LinearDuelingBanditFamily``, behaviour): the
+    weak- and strong-regret summary (``duels.summarize_regrets``) and, per regret, the per-h curve.
 
     Several checkpoints (training seeds): each summary is the mean ± sem over seeds of each seed's
-    mean over problems (``over_training_seeds``), the curve the mean of the seeds' curves.
+    mean over problems (``over_training_seeds``), the curve the mean of the seeds' curves. Returns
+    ``(summaries[method][source], curves[regret][method][source])``.
     """
-    summaries: dict[str, dict[str, dict[str, float]]] = {}
-    curves: dict[str, dict[str, dict[str, list]]] = {}
+    family = dm.family if isinstance(getattr(dm, "family", None), LinearDuelingBanditFamily) else None
+    summaries: dict[str, dict[str, dict[str, Any]]] = {}
+    curves: dict[str, dict[str, dict[str, Any]]] = {}
     for suite in dm.bandit_suites():
         suite = diagnose_suite(suite, diagnostic, seed=0)
         per_checkpoint = [seed_mean_curves(lambda seed, c=c: load_agent(c, greedy=greedy, seed=seed), suite, name,
-                                           seeds, baselines=baselines and i == 0)
+                                           seeds, baselines=baselines and i == 0, family=family)
                           for i, c in enumerate(checkpoints)]
         for method in per_checkpoint[0]:
             runs = [p[method] for p in per_checkpoint if method in p]
             summaries.setdefault(method, {})[suite.source] = over_training_seeds(
-                [summarize_regret(c, with_tasks=True) for c in runs])
-            means = [curve_mean_sem(c) for c in runs]
-            mean = np.mean([m for m, _ in means], axis=0)
-            sem = means[0][1] if len(runs) == 1 else np.std([m for m, _ in means], axis=0, ddof=1) / np.sqrt(len(runs))
-            curves.setdefault(method, {})[suite.source] = {"mean": mean.tolist(), "sem": sem.tolist()}
+                [summarize_regrets(c, with_tasks=True) for c in runs])
+            for regret in runs[0]:
+                means = [curve_mean_sem(c[regret]) for c in runs]
+                mean = np.mean([m for m, _ in means], axis=0)
+                sem = (means[0][1] if len(runs) == 1
+                       else np.std([m for m, _ in means], axis=0, ddof=1) / np.sqrt(len(runs)))
+                curves.setdefault(regret, {}).setdefault(method, {})[suite.source] = {"mean": mean.tolist(),
+                                                                                      "sem": sem.tolist()}
     return summaries, curves
 
 
 def bandit_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | None) -> dict[str, Any]:
-    """Weak-regret summaries and curves of every run, with DTS and behaviour rows from the reference's dataset."""
+    """Weak- and strong-regret summaries and curves of every run, with the ``BASELINES`` rows (DTS, MaxInP,
+    BT Thompson sampling, the Bayes reference, behaviour) from the reference's dataset."""
     results, curves, diagnostics = {}, {}, {}
     for name, (_, checkpoints) in args.runs.items():
         summaries, run_curves = evaluate_bandit(datamodules[name], checkpoints, name, args.seeds, greedy,
                                                 baselines=name == args.reference)
-        results.update(summaries)  # the run's own row, and the reference run's DTS and behaviour rows
-        curves.update(run_curves)
+        results.update(summaries)  # the run's own row, and the reference run's baseline rows
+        for regret, per_method in run_curves.items():
+            curves.setdefault(regret, {}).update(per_method)
         for diagnostic in args.diagnostics:
             diagnosed, _ = evaluate_bandit(datamodules[name], checkpoints, name, args.seeds, greedy,
                                            baselines=False, diagnostic=diagnostic)
             diagnostics.setdefault(name, {})[diagnostic] = diagnosed[name]
     dm = datamodules[args.reference]
     suite = dm.bandit_suites()[0]
-    order = [*args.runs, *BASELINES]
+    order = [*args.runs, *(b for b in BASELINES if b in results)]
     return {"runs": args.run, "reference_rows_from": args.reference, "dataset": str(dm.path),
             "n_eval_problems": int(suite.expected_rewards.shape[0]), "horizon": int(suite.context.preferred.shape[1]),
-            "results": {n: results[n] for n in order}, "curves": {n: curves[n] for n in order},
-            "diagnostics": diagnostics}
+            "results": {n: results[n] for n in order}, "curves": {n: curves["weak"][n] for n in order},
+            "strong_curves": {n: curves["strong"][n] for n in order}, "diagnostics": diagnostics}
 
 
 def rollout_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | None) -> dict[str, Any]:

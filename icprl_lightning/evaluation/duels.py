@@ -1,9 +1,14 @@
-"""Weak regret of in-context dueling-bandit policies vs context size (paper, appendix "Dueling Bandit Experiments").
+"""Weak and strong regret of in-context dueling-bandit policies vs context size (paper, appendix "Dueling
+Bandit Experiments").
 
 On a held-out problem τ with context D^I = {(a_h, a'_h, y_h)}_{h ≤ H}, each method plays one duel after
-seeing the first h comparisons, for every context size h = 1..H, scored by the weak regret
+seeing the first h comparisons, for every context size h = 1..H, scored by the weak regret (the paper's)
+and the strong regret
 
-    reg(a, a') = min(R*_τ − R_τ(a), R*_τ − R_τ(a'))                      (``metrics.weak_regret``).
+    reg(a, a') = min(R*_τ − R_τ(a), R*_τ − R_τ(a'))                      (``metrics.weak_regret``),
+    reg_strong(a, a') = ((R*_τ − R_τ(a)) + (R*_τ − R_τ(a'))) / 2         (``metrics.strong_regret``),
+
+the strong regret being the standard average of the two gaps (``metrics``: on one arm's scale, ≥ the weak one).
 
 * The trained method (ICPO, or any policy on ``StepPreferenceContext`` with ``state_dim = 0``), through
   the public ``Agent``: a = its action after D_{1:h} (``Agent.act_each_prefix``: argmax_ã T_θ(ã | D_{1:h})
@@ -11,11 +16,27 @@ seeing the first h comparisons, for every context size h = 1..H, scored by the w
 * DTS: Double Thompson Sampling fed the same first h comparisons (incrementally over h), then asked for
   its duel (paper: "DTS also utilizes the same bandit preferences in D^I").
 * Behaviour: the duel the context's own behaviour policy played next, i.e. its duel h + 1.
+* Given the family (``LinearDuelingBanditFamily``: its arm features, prior and Bradley–Terry temperature),
+  the feature-aware baselines of ``families/dueling_bandit``, fed the same prefixes
+  (``linear_baselines.prefix_duels``), with the hyperparameters ``tuning.TUNED`` chose on training problems
+  only (300 training problems, uniform contexts of 50 comparisons):
+
+  - ``maxinp``: MaxInP (Saha 2021), β = 0.1, prior variance v = 0.01;
+  - ``bt_thompson``: two-sample Thompson sampling on the Laplace Bradley–Terry posterior, v = 1.0,
+    posterior scale s = 0.1;
+  - ``bayes``: the Bayes reference under the family's own prior N(0, I/d) (Laplace posterior, 256 draws).
+    It is a floor per regret, not one learner: its weak regret is that of the Bayes-optimal pair for weak
+    regret (rule ``"weak"``), its strong regret that of the Bayes-optimal arm against itself (rule
+    ``"strong"``). Averaged over problems drawn from the prior no rule has lower expected regret, so a
+    learner goes below it only by chance, within the standard error.
+
+  Every learner refits with 5 warm-started Newton steps per prefix.
 
 Duels are ``(first, second)`` int64 tensors ``[B, H]``; column h − 1 is the duel after h comparisons.
 Per-problem regret curves ``[B, H]`` are summarized over problems as mean ± standard error, at h = H
-(``weak_regret``) and averaged over h = 1..H (``weak_regret_auc``). Results are keyed by the method's own
-name (``method_name``: ``ICPOModule`` -> ``icpo``) beside ``dts`` and ``behavior``.
+(``weak_regret``, ``strong_regret``), averaged over h = 1..H (``weak_regret_auc``, ``strong_regret_auc``)
+and at the context sizes ``CONTEXT_SIZES`` below H (``weak_regret_h10``, ...). Results are keyed by the
+method's own name (``method_name``: ``ICPOModule`` -> ``icpo``) beside the ``BASELINES``.
 """
 
 from __future__ import annotations
@@ -30,12 +51,21 @@ from torch import Tensor
 from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.data.suites import BanditSuite
 from icprl_lightning.deploy import Agent
+from icprl_lightning.families.dueling_bandit.bayes import BayesReference
+from icprl_lightning.families.dueling_bandit.bt_thompson import BTThompsonSampling
 from icprl_lightning.families.dueling_bandit.dts import DoubleThompsonSampling
-from icprl_lightning.metrics import mean_sem, weak_regret
+from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
+from icprl_lightning.families.dueling_bandit.linear_baselines import LinearDuelingLearner, prefix_duels
+from icprl_lightning.families.dueling_bandit.maxinp import MaxInP
+from icprl_lightning.families.dueling_bandit.tuning import TUNED
+from icprl_lightning.metrics import mean_sem, strong_regret, weak_regret
 from icprl_lightning.progress import track
 
 Duels = tuple[Tensor, Tensor]
-BASELINES = ("dts", "behavior")
+LINEAR_BASELINES = ("maxinp", "bt_thompson", "bayes")
+BASELINES = ("dts", *LINEAR_BASELINES, "behavior")
+REGRETS = {"weak": weak_regret, "strong": strong_regret}
+CONTEXT_SIZES = (10, 50, 100, 200)
 
 
 def method_name(method: type | str) -> str:
@@ -48,6 +78,25 @@ def seed_streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
     """Independent generators for the method's random second arm and for DTS's sampling."""
     method_seed, dts_seed = np.random.SeedSequence(seed).spawn(2)
     return np.random.default_rng(method_seed), np.random.default_rng(dts_seed)
+
+
+def baseline_seeds(seed: int) -> dict[str, np.random.SeedSequence]:
+    """One seed per feature-aware baseline, independent of ``seed_streams``'s two (the next children of the
+    same ``SeedSequence``), so adding the baselines leaves the method's and DTS's draws unchanged."""
+    children = np.random.SeedSequence(seed).spawn(2 + len(LINEAR_BASELINES))[2:]
+    return dict(zip(LINEAR_BASELINES, children, strict=True))
+
+
+def linear_learner(name: str, family: LinearDuelingBanditFamily, n_problems: int, rng: np.random.Generator,
+                   rule: str = "weak") -> LinearDuelingLearner:
+    """The baseline ``name`` of ``LINEAR_BASELINES`` for ``n_problems`` problems of ``family``, with the tuned
+    knobs (``tuning.TUNED``); ``rule``: the Bayes reference's pair rule (``bayes.PAIR_RULES``)."""
+    if name == "bayes":
+        return BayesReference.for_family(family, n_problems, rng=rng, rule=rule)
+    learners = {"maxinp": MaxInP, "bt_thompson": BTThompsonSampling}
+    if name not in learners:
+        raise ValueError(f"baseline must be one of {', '.join(LINEAR_BASELINES)}, got {name!r}")
+    return learners[name](family.features, n_problems, temperature=family.bt_temperature, rng=rng, **TUNED[name])
 
 
 @torch.no_grad()
@@ -88,9 +137,40 @@ def behavior_duels(suite: BanditSuite) -> Duels:
     return suite.behavior_first.long(), suite.behavior_second.long()
 
 
+def linear_duels(context: StepPreferenceContext, family: LinearDuelingBanditFamily, name: str,
+                 rng: np.random.Generator, rule: str = "weak") -> Duels:
+    """The feature-aware baseline ``name``'s duel after each prefix D_{1:h}, h = 1..H (``prefix_duels``: observe
+    comparison h, then select, as ``dts_duels``); ``rule``: the Bayes reference's pair rule."""
+    arms_first, arms_second = context.actions.cpu().numpy(), context.alt_actions.cpu().numpy()
+    preferred = (context.preferred.cpu().numpy() > 0.5).astype(np.uint8)
+    learner = linear_learner(name, family, len(preferred), rng, rule)
+    first, second = prefix_duels(learner, arms_first, arms_second, preferred)
+    return torch.from_numpy(first), torch.from_numpy(second)
+
+
+def baseline_curves(suite: BanditSuite, family: LinearDuelingBanditFamily, seed: int = 0
+                    ) -> dict[str, dict[str, Tensor]]:
+    """Weak and strong regret curves ``[B, H]`` of every ``LINEAR_BASELINES`` row on ``suite``'s contexts, each
+    learner drawing from its ``baseline_seeds(seed)`` stream. The ``bayes`` row scores each regret by the Bayes
+    rule for it: weak regret of rule ``"weak"``'s pair, strong regret of rule ``"strong"``'s self-duel."""
+    n_arms = suite.expected_rewards.shape[1]
+    if family.n_arms != n_arms:
+        raise ValueError(f"family has n_arms={family.n_arms}, but the suite's problems have {n_arms} arms")
+    seeds = baseline_seeds(seed)
+    out = {name: regret_curves(suite.expected_rewards,
+                               linear_duels(suite.context, family, name, np.random.default_rng(seeds[name])))
+           for name in LINEAR_BASELINES if name != "bayes"}
+    bayes_rng = np.random.default_rng(seeds["bayes"])  # rule "strong" takes the posterior mean: no draws
+    out["bayes"] = {regret: regret_curve(suite.expected_rewards,
+                                         linear_duels(suite.context, family, "bayes", bayes_rng, rule), regret)
+                    for regret, rule in (("weak", "weak"), ("strong", "strong"))}
+    return out
+
+
 def evaluate_duels(agent: Agent, suite: BanditSuite, method: str, seed: int = 0, batch_chunk: int = 32,
                    baselines: bool = True) -> dict[str, Duels]:
-    """The duels of ``method`` (the agent) and, with ``baselines``, of DTS and the behaviour policy."""
+    """The duels of ``method`` (the agent) and, with ``baselines``, of DTS and the behaviour policy (the
+    feature-aware baselines: ``baseline_curves``)."""
     if method in BASELINES:
         raise ValueError(f"method name {method!r} is taken by a baseline row ({', '.join(BASELINES)})")
     method_rng, dts_rng = seed_streams(seed)
@@ -102,23 +182,40 @@ def evaluate_duels(agent: Agent, suite: BanditSuite, method: str, seed: int = 0,
     return out
 
 
-def regret_curve(expected_rewards: Tensor, duels: Duels) -> Tensor:
-    """Weak regret of every duel: ``expected_rewards [B, A]``, duels ``[B, H]`` -> ``[B, H]``."""
+def regret_curve(expected_rewards: Tensor, duels: Duels, regret: str = "weak") -> Tensor:
+    """The ``regret`` (``REGRETS``: weak or strong) of every duel: ``expected_rewards [B, A]``, duels ``[B, H]`` ->
+    ``[B, H]``."""
+    if regret not in REGRETS:
+        raise ValueError(f"regret must be one of {', '.join(REGRETS)}, got {regret!r}")
     first, second = duels
     b, h = first.shape
     rewards = expected_rewards.repeat_interleave(h, dim=0)  # (B·H, A), row-major like first.reshape(-1)
-    return weak_regret(rewards, first.reshape(-1), second.reshape(-1)).reshape(b, h)
+    return REGRETS[regret](rewards, first.reshape(-1), second.reshape(-1)).reshape(b, h)
+
+
+def regret_curves(expected_rewards: Tensor, duels: Duels) -> dict[str, Tensor]:
+    """``regret_curve`` of the same duels for every regret of ``REGRETS``."""
+    return {regret: regret_curve(expected_rewards, duels, regret) for regret in REGRETS}
 
 
 def seed_mean_curves(make_agent: Callable[[int], Agent], suite: BanditSuite, method: str, seeds: Sequence[int],
-                     baselines: bool = True, batch_chunk: int = 32) -> dict[str, Tensor]:
-    """Per-problem regret curves ``[B, H]`` averaged over seeds (random second arm, DTS sampling)."""
-    curves: dict[str, list[Tensor]] = {}
+                     baselines: bool = True, batch_chunk: int = 32, family: LinearDuelingBanditFamily | None = None
+                     ) -> dict[str, dict[str, Tensor]]:
+    """Per row (``method``, then ``BASELINES`` in order) and regret, per-problem curves ``[B, H]`` averaged over
+    seeds (random second arm, DTS's and the baselines' sampling). With ``baselines``: DTS and behaviour rows, and
+    with the ``family`` also the feature-aware baselines (``baseline_curves``)."""
+    curves: dict[str, dict[str, list[Tensor]]] = {}
     for seed in seeds:
-        duels = evaluate_duels(make_agent(seed), suite, method, seed, batch_chunk, baselines)
-        for name, pair in duels.items():
-            curves.setdefault(name, []).append(regret_curve(suite.expected_rewards, pair).double())
-    return {name: torch.stack(c).mean(0) for name, c in curves.items()}
+        played = {name: regret_curves(suite.expected_rewards, pair)
+                  for name, pair in evaluate_duels(make_agent(seed), suite, method, seed, batch_chunk,
+                                                   baselines).items()}
+        if baselines and family is not None:
+            played.update(baseline_curves(suite, family, seed))
+        for name, by_regret in played.items():
+            for regret, curve in by_regret.items():
+                curves.setdefault(name, {}).setdefault(regret, []).append(curve.double())
+    order = [name for name in (method, *BASELINES) if name in curves]
+    return {name: {regret: torch.stack(c).mean(0) for regret, c in curves[name].items()} for name in order}
 
 
 def curve_mean_sem(curve: Tensor) -> tuple[np.ndarray, np.ndarray]:
@@ -128,14 +225,34 @@ def curve_mean_sem(curve: Tensor) -> tuple[np.ndarray, np.ndarray]:
     return values.mean(axis=0), sem
 
 
-def summarize_regret(curve: Tensor, with_tasks: bool = False) -> dict[str, Any]:
-    """Final (h = H) and mean-over-h weak regret, each with its standard error over problems; ``with_tasks``:
-    also, under ``per_task``, each problem's two values (what the bootstrap confidence intervals resample)."""
+def summarize_regret(curve: Tensor, with_tasks: bool = False, regret: str = "weak", sizes: Sequence[int] = ()
+                     ) -> dict[str, Any]:
+    """Final (h = H) and mean-over-h ``regret`` (keys ``<regret>_regret``, ``<regret>_regret_auc``) and, for each
+    of ``sizes`` up to H, the regret after h comparisons (``<regret>_regret_h<h>``), each with its standard
+    error over problems; ``with_tasks``: also, under ``per_task``, each problem's values (what the bootstrap
+    confidence intervals resample)."""
     values = curve.double().cpu().numpy()
-    final, final_sem = mean_sem(values[:, -1])
-    auc, auc_sem = mean_sem(values.mean(axis=1))
-    out: dict[str, Any] = {"weak_regret": final, "weak_regret_sem": final_sem, "weak_regret_auc": auc,
-                           "weak_regret_auc_sem": auc_sem}
+    key = f"{regret}_regret"
+    per_problem = {key: values[:, -1], f"{key}_auc": values.mean(axis=1)}
+    per_problem.update((f"{key}_h{h}", values[:, h - 1]) for h in sizes if 1 <= h <= values.shape[1])
+    out: dict[str, Any] = {}
+    for name, v in per_problem.items():
+        out[name], out[f"{name}_sem"] = mean_sem(v)
     if with_tasks:
-        out["per_task"] = {"weak_regret": values[:, -1].tolist(), "weak_regret_auc": values.mean(axis=1).tolist()}
+        out["per_task"] = {name: v.tolist() for name, v in per_problem.items()}
+    return out
+
+
+def summarize_regrets(curves: dict[str, Tensor], with_tasks: bool = False, sizes: Sequence[int] = CONTEXT_SIZES
+                      ) -> dict[str, Any]:
+    """``summarize_regret`` of each regret's curve (``{"weak": [B, H], "strong": [B, H]}``) in one row, at
+    ``sizes``; ``per_task`` merged."""
+    out: dict[str, Any] = {}
+    for regret, curve in curves.items():
+        summary = summarize_regret(curve, with_tasks, regret, sizes)
+        if with_tasks:
+            out.setdefault("per_task", {}).update(summary.pop("per_task"))
+        out.update(summary)
+    if with_tasks:
+        out["per_task"] = out.pop("per_task")  # last, as summarize_regret's
     return out

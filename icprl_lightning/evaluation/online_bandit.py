@@ -1,29 +1,38 @@
-"""ICPO played online on held-out dueling-bandit problems, beside Double Thompson Sampling.
+"""ICPO played online on held-out dueling-bandit problems, beside Double Thompson Sampling and the feature-aware
+baselines MaxInP and BT Thompson sampling.
 
-Both start from no comparisons. Each round ICPO (``online.OnlineAgent``, greedy as the checkpoint's default)
+All start from no comparisons. Each round ICPO (``online.OnlineAgent``, greedy as the checkpoint's default)
 proposes a duel by a pair rule (``online.PAIR_RULES``; default ``action_uniform``: its argmax arm against a
 uniformly random other arm, the rule of the offline evaluation, ``evaluation/duels.py``), the family's
 Bradley–Terry oracle labels it (``LinearDuelingBanditFamily.sample_labels``) and the answered duel is
 appended to the agent's KV cache as one token. DTS (``families/dueling_bandit/dts.run_dts``) selects, is
-labelled by the same BT preference matrix, and updates. Round r's duel is chosen after r − 1 comparisons
-(ICPO's first duel is its output on an empty context, a query position training never scores).
+labelled by the same BT preference matrix, and updates; so do MaxInP and BT Thompson sampling
+(``linear_baselines.run_online``), which model the arm features, with the knobs ``tuning.TUNED`` chose on
+training problems (MaxInP β = 0.1, prior variance 0.01; BT Thompson sampling prior variance 1.0, posterior
+scale 0.1; ``evaluation.duels``). Round r's duel is chosen after r − 1 comparisons (ICPO's first duel is
+its output on an empty context, a query position training never scores).
 
-Two regrets per round:
+Three regrets per round:
 
 * the **weak regret** of the duel played, min(R* − R(a), R* − R(a')) (``metrics.weak_regret``): the online
   dueling-bandit objective, which charges exploration;
+* the **strong regret** of the duel played, ((R* − R(a)) + (R* − R(a'))) / 2 (``metrics.strong_regret``, the
+  standard average of the two gaps), which charges both arms (ICPO's default pair rule pays for its uniformly
+  random second arm here);
 * the **recommendation regret** R* − R(â_r) of the arm the agent would pick after r answered queries (ICPO's
-  greedy ``act``; DTS's first arm of round r + 1): what a query buys, the measure of active querying (the
+  greedy ``act``; DTS's first arm of round r + 1; MaxInP's and BT Thompson sampling's ``recommend``, the best
+  arm under their estimate): what a query buys, the measure of active querying (the
   pair rules: which pair to ask at the same query budget). ``queries_to_reach[target]`` is the first round
   from which the mean recommendation regret stays at or below ``target`` until the last round (``None``:
   never).
 
 ``labels="flipped"`` / ``"random"`` is the online label diagnostic: the oracle's answers are inverted, or
-replaced by fair coins, before the agent sees them (DTS keeps the true ones). If ICPO's regret does not
-suffer, its online gains do not come from the labels.
+replaced by fair coins, before the agent sees them (the baselines keep the true ones). If ICPO's regret does
+not suffer, its online gains do not come from the labels.
 
 Per problem, the curves are averaged over the episode seeds (the pair rule's draws, the labels and DTS's
-draws; ``evaluation.duels.seed_streams``), then over problems; with several checkpoints (training seeds)
+draws, ``evaluation.duels.seed_streams``; the baselines' own, ``evaluation.duels.baseline_seeds``), then over
+problems; with several checkpoints (training seeds)
 each checkpoint is reported and the mean ± standard error over checkpoints is ``mean``. The held-out
 problems are the ``test_theta`` of the dataset.
 """
@@ -38,15 +47,18 @@ from typing import Any
 import numpy as np
 import torch
 
-from icprl_lightning.evaluation.duels import seed_streams
+from icprl_lightning.evaluation.duels import baseline_seeds, linear_learner, seed_streams
 from icprl_lightning.families.dueling_bandit import LinearDuelingBanditFamily
 from icprl_lightning.families.dueling_bandit.dts import run_dts
-from icprl_lightning.metrics import mean_sem, mean_sem_or_none, weak_regret
+from icprl_lightning.families.dueling_bandit.linear_baselines import run_online
+from icprl_lightning.metrics import mean_sem, mean_sem_or_none, strong_regret, weak_regret
 from icprl_lightning.online import PAIR_RULES, OnlineAgent
 
 BUDGETS = (10, 25, 50, 100, 200)
 TARGETS = (0.4, 0.35, 0.3, 0.25)
 LABELS = ("own", "flipped", "random")
+ONLINE_BASELINES = ("maxinp", "bt_thompson")
+REGRET_KEYS = ("cumulative_weak_regret", "final_weak_regret", "cumulative_strong_regret", "final_strong_regret")
 
 
 def icpo_online(agent: OnlineAgent, family: LinearDuelingBanditFamily, theta: np.ndarray, rounds: int,
@@ -84,11 +96,26 @@ def dts_online(family: LinearDuelingBanditFamily, theta: np.ndarray, rounds: int
     return {"first": first[:, :rounds], "second": second[:, :rounds], "recommended": first[:, 1:]}
 
 
+def linear_online(family: LinearDuelingBanditFamily, theta: np.ndarray, rounds: int, name: str,
+                  seed: np.random.SeedSequence) -> dict[str, torch.Tensor]:
+    """The feature-aware baseline ``name`` (``ONLINE_BASELINES``) over ``rounds`` rounds: its duels and its
+    ``recommend``-ed arm after each answer; the learner and the labels draw from two children of ``seed``."""
+    if name not in ONLINE_BASELINES:
+        raise ValueError(f"an online baseline is one of {', '.join(ONLINE_BASELINES)}, got {name!r}")
+    learner_seed, label_seed = seed.spawn(2)
+    learner = linear_learner(name, family, len(theta), np.random.default_rng(learner_seed))
+    played = run_online(learner, family.preference_matrix(theta), rounds, np.random.default_rng(label_seed),
+                        recommend=True)
+    return {"first": torch.from_numpy(played["arms_first"]), "second": torch.from_numpy(played["arms_second"]),
+            "recommended": torch.from_numpy(played["recommended"])}
+
+
 def regrets(rewards: torch.Tensor, play: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """Weak regret of each duel and recommendation regret after each answer, ``[P, rounds]`` each."""
+    """Weak and strong regret of each duel and recommendation regret after each answer, ``[P, rounds]`` each."""
     p, r = play["first"].shape
     flat = rewards.repeat_interleave(r, dim=0)
-    out = {"weak": weak_regret(flat, play["first"].reshape(-1), play["second"].reshape(-1))}
+    first, second = play["first"].reshape(-1), play["second"].reshape(-1)
+    out = {"weak": weak_regret(flat, first, second), "strong": strong_regret(flat, first, second)}
     rec = play["recommended"].reshape(-1)
     out["recommendation"] = weak_regret(flat, rec, rec)
     return {k: v.reshape(p, r).double() for k, v in out.items()}
@@ -105,12 +132,15 @@ def queries_to_reach(curve: Sequence[float]) -> dict[str, int | None]:
 
 
 def summarize(curves: dict[str, torch.Tensor]) -> dict[str, Any]:
-    """Mean ± sem over problems: cumulative and final weak regret, recommendation regret at the budgets and
-    its mean curve, and the first round reaching each target."""
-    weak, rec = curves["weak"].numpy(), curves["recommendation"].numpy()
+    """Mean ± sem over problems: cumulative and final weak and strong regret, recommendation regret at the
+    budgets and its mean curve, and the first round reaching each target."""
+    rec = curves["recommendation"].numpy()
     out: dict[str, Any] = {}
-    for key, values in (("cumulative_weak_regret", weak.sum(1)), ("final_weak_regret", weak[:, -1])):
-        out[key], out[f"{key}_sem"] = mean_sem(values)
+    for regret in ("weak", "strong"):
+        values = curves[regret].numpy()
+        for key, per_problem in ((f"cumulative_{regret}_regret", values.sum(1)),
+                                 (f"final_{regret}_regret", values[:, -1])):
+            out[key], out[f"{key}_sem"] = mean_sem(per_problem)
     budgets = [b for b in BUDGETS if b <= rec.shape[1]]
     out["recommendation_regret"] = {str(b): dict(zip(("mean", "sem"), mean_sem(rec[:, b - 1]), strict=True))
                                     for b in budgets}
@@ -123,7 +153,7 @@ def summarize(curves: dict[str, torch.Tensor]) -> dict[str, Any]:
 def over_checkpoints(per_ckpt: list[dict[str, Any]]) -> dict[str, Any]:
     """Mean ± sem over training seeds of every scalar of ``summarize`` (budgets included; sem ``None`` for one)."""
     out: dict[str, Any] = {}
-    for key in ("cumulative_weak_regret", "final_weak_regret"):
+    for key in REGRET_KEYS:
         out[key], out[f"{key}_sem"] = mean_sem_or_none([s[key] for s in per_ckpt])
     budgets = per_ckpt[0]["recommendation_regret"]
     out["recommendation_regret"] = {b: dict(zip(("mean", "sem"), mean_sem_or_none(
@@ -138,8 +168,9 @@ def over_checkpoints(per_ckpt: list[dict[str, Any]]) -> dict[str, Any]:
 def evaluate_online_bandit(dm: Any, checkpoints: Sequence[str], rules: Sequence[str] = ("action_uniform",),
                            labels: str = "own", seeds: Sequence[int] = (0,), rounds: int = 200,
                            n_problems: int | None = None) -> dict[str, Any]:
-    """ICPO's online regrets per pair rule (per checkpoint and over checkpoints) and DTS's, on ``dm``'s held-out
-    problems (the first ``n_problems``, default all). ``dm`` is a prepared DataModule of a
+    """ICPO's online regrets per pair rule (per checkpoint and over checkpoints) and those of DTS and the
+    ``ONLINE_BASELINES`` (keys ``dts``, ``maxinp``, ``bt_thompson``), on ``dm``'s held-out problems (the first
+    ``n_problems``, default all). ``dm`` is a prepared DataModule of a
     ``LinearDuelingBanditFamily``. Returns the JSON-ready result (module docstring)."""
     if labels not in LABELS:
         raise ValueError(f"--labels must be one of {', '.join(LABELS)}, got {labels!r}")
@@ -179,13 +210,17 @@ def evaluate_online_bandit(dm: Any, checkpoints: Sequence[str], rules: Sequence[
             per_ckpt.append(summarize(seed_mean(play)))
         icpo[rule] = {"mean": over_checkpoints(per_ckpt), "per_checkpoint": per_ckpt}
     dts = summarize(seed_mean(lambda seed: dts_online(family, theta, rounds, seed_streams(seed)[1])))
+    baselines = {name: summarize(seed_mean(
+        lambda seed, name=name: linear_online(family, theta, rounds, name, baseline_seeds(seed)[name])))
+        for name in ONLINE_BASELINES}
     return {"checkpoints": [str(c) for c in checkpoints], "dataset": str(dm.path), "problems": len(theta),
-            "rounds": rounds, "seeds": list(seeds), "labels": labels, "icpo": icpo, "dts": dts,
+            "rounds": rounds, "seeds": list(seeds), "labels": labels, "icpo": icpo, "dts": dts, **baselines,
             "seconds": round(time.perf_counter() - started, 1)}
 
 
 def online_bandit_figure(out: dict[str, Any], path: str | Path) -> None:
-    """Recommendation regret vs answered queries, one line per pair rule (mean over training seeds), DTS dashed."""
+    """Recommendation regret vs answered queries, one line per pair rule (mean over training seeds), DTS and
+    the feature-aware baselines dashed."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6, 3.6), layout="tight")
@@ -193,8 +228,11 @@ def online_bandit_figure(out: dict[str, Any], path: str | Path) -> None:
     for i, (rule, result) in enumerate(out["icpo"].items()):
         curve = result["mean"]["recommendation_curve"]
         ax.plot(range(1, len(curve) + 1), curve, color=f"C{i}", label=f"ICPO, {rule} pairs")
-    dts = out["dts"]["recommendation_curve"]
-    ax.plot(range(1, len(dts) + 1), dts, color="k", linestyle="--", label="DTS")
+    references = [("dts", "DTS", "k"), ("maxinp", "MaxInP", "0.45"), ("bt_thompson", "BT Thompson sampling", "0.7")]
+    for key, label, color in references:
+        if key in out:  # results written before the feature-aware baselines have DTS only
+            curve = out[key]["recommendation_curve"]
+            ax.plot(range(1, len(curve) + 1), curve, color=color, linestyle="--", label=label)
     ax.set_xlabel("answered queries")
     ax.set_ylabel("regret of the recommended arm")
     ax.set_yscale("log")

@@ -6,10 +6,11 @@ Two kinds of result, both the paper's metrics:
   where the environment reports it), mean ± sem over tasks, per context quality, with the behavior
   policy and the optimal/expert policy beside the methods (``results_table``, ``rollout_markdown``,
   ``rollout_figure``);
-* dueling bandits: weak regret min(R* − R(a), R* − R(a')) vs context size (paper, appendix "Dueling
-  Bandit Experiments"), at h = H and averaged over h, mean ± sem over problems, per context source,
-  with DTS and the behaviour policy beside the methods (``regret_table``, ``regret_markdown``,
-  ``regret_figure``).
+* dueling bandits: weak regret min(R* − R(a), R* − R(a')) (paper, appendix "Dueling Bandit
+  Experiments") and strong regret ((R* − R(a)) + (R* − R(a'))) / 2 vs context size, at h = H, averaged over h
+  and at smaller context sizes, mean ± sem over problems, per context source, with DTS, the feature-aware
+  baselines, the Bayes reference and the behaviour policy beside the methods (``regret_table``,
+  ``regret_markdown``, ``regret_figure``).
 
 Figures use ``matplotlib.figure.Figure`` directly, so importing this module never changes the
 matplotlib backend of the caller.
@@ -28,7 +29,10 @@ from rich.measure import Measurement
 from rich.table import Table
 
 MDP_METRICS = ("return", "normalized_return", "success")
-REGRET_METRICS = (("weak_regret", "weak regret at h = H"), ("weak_regret_auc", "weak regret, mean over h = 1..H"))
+REGRET_METRICS = (("weak_regret", "weak regret at h = H"), ("weak_regret_auc", "weak regret, mean over h = 1..H"),
+                  ("strong_regret", "strong regret at h = H"),
+                  ("strong_regret_auc", "strong regret, mean over h = 1..H"))
+REFERENCE_STYLES = {"bayes": {"color": "k", "linestyle": "--"}, "behavior": {"color": "0.55", "linestyle": ":"}}
 COLUMNS = (("return", "return"), ("normalized", "normalized_return"), ("success", "success"),
            ("behavior return", "behavior_return"), ("behavior normalized", "behavior_normalized_return"),
            ("behavior success", "behavior_success"),
@@ -276,38 +280,67 @@ def diagnostics_figure(payload: dict, path: str | Path, metric: str) -> None:
 
 # ---- bandit outputs (icprl evaluate) ---------------------------------------------------------------
 
+def _context_sizes(results: dict, sources: list[str], horizon: int) -> list[int]:
+    """The context sizes h < H at which the rows report regret (keys ``weak_regret_h<h>``), ascending."""
+    keys = {k for res in results.values() for source in sources for k in res.get(source, {})}
+    sizes = {int(k.removeprefix("weak_regret_h")) for k in keys
+             if k.startswith("weak_regret_h") and k.removeprefix("weak_regret_h").isdigit()}
+    return sorted(h for h in sizes if h < horizon)
+
+
 def regret_markdown(payload: dict) -> str:
-    """Per statistic (h = H, mean over h) a table: one row per method, DTS and behaviour; one column per source."""
+    """Per statistic a table (one row per method and baseline, one column per context source): weak and strong
+    regret at h = H and averaged over h, then each at the smaller context sizes the rows report."""
     results, _, sources = _groups(payload)
-    metrics = [(m, t, 3) for m, t in REGRET_METRICS]
+    present = {k for res in results.values() for source in sources for k in res.get(source, {})}
+    metrics = [(m, t, 3) for m, t in REGRET_METRICS if m in present]
+    sizes = _context_sizes(results, sources, payload["horizon"])
+    metrics += [(f"{regret}_regret_h{h}", f"{regret} regret at h = {h}", 3) for regret in ("weak", "strong")
+                for h in sizes if f"{regret}_regret_h{h}" in present]
     lines = _markdown_tables(results, sources, metrics, "method")
-    lines.append(f"Weak regret min(R* − R(a), R* − R(a')), mean ± sem over {payload['n_eval_problems']} held-out "
-                 f"problems, H = {payload['horizon']}. DTS and behaviour rows: the dataset of "
+    baselines = [n for n in results if n not in _checkpoints_per_run(payload)]
+    strong = " and strong regret ((R* − R(a)) + (R* − R(a'))) / 2" if "strong_regret" in present else ""
+    lines.append(f"Weak regret min(R* − R(a), R* − R(a')){strong}, mean ± sem over {payload['n_eval_problems']} "
+                 f"held-out problems, H = {payload['horizon']}. Rows {', '.join(baselines)}: the dataset of "
                  f"{payload['reference_rows_from']}. {_seeds_note(payload)}")
-    lines += diagnostics_markdown(payload, metrics, "method")
+    if "bayes" in results:
+        lines.append("")
+        lines.append("maxinp and bt_thompson use the arm features, with the knobs chosen on training problems "
+                     "(families/dueling_bandit/tuning.py). bayes is the Bayes reference, not a learner: for each "
+                     "regret the duel the posterior under the family's prior favours after the same h comparisons "
+                     "(weak: the pair maximizing E[max(r(a), r(a'))]; strong: the posterior-best arm against itself); "
+                     "in expectation over problems no learner goes below it.")
+    lines += diagnostics_markdown(payload, [m for m in metrics if m[0].startswith("weak_regret")][:2], "method")
     return "\n".join(lines) + "\n"
 
 
 def regret_figure(payload: dict, path: str | Path) -> None:
-    """One panel per context source: weak regret vs context size h, mean ± sem band per method."""
+    """One panel per context source, one row per regret (weak; strong when the payload has ``strong_curves``):
+    regret vs context size h, mean ± sem band per method; the Bayes reference dashed, behaviour dotted."""
     from matplotlib.figure import Figure
 
-    curves = payload["curves"]
-    sources = list(next(iter(curves.values())))
-    fig = Figure(figsize=(4.5 * len(sources), 3.6), layout="tight")
-    axes = fig.subplots(1, len(sources), sharey=True, squeeze=False)
-    for ax, source in zip(axes[0], sources, strict=True):
-        for name, per_source in curves.items():
-            mean, sem = np.asarray(per_source[source]["mean"]), np.asarray(per_source[source]["sem"])
-            h = np.arange(1, len(mean) + 1)
-            ax.plot(h, mean, label=name)
-            ax.fill_between(h, mean - sem, mean + sem, alpha=0.25)
-        ax.set_title(f"{source} contexts")
+    rows = [("weak", payload["curves"])] + ([("strong", payload["strong_curves"])] if "strong_curves" in payload
+                                           else [])
+    sources = list(next(iter(payload["curves"].values())))
+    fig = Figure(figsize=(4.2 * len(sources) + 1.6, 3.2 * len(rows)), layout="constrained")
+    axes = fig.subplots(len(rows), len(sources), sharex=True, sharey="row", squeeze=False)
+    for r, (regret, curves) in enumerate(rows):
+        for ax, source in zip(axes[r], sources, strict=True):
+            for i, (name, per_source) in enumerate(curves.items()):
+                mean, sem = np.asarray(per_source[source]["mean"]), np.asarray(per_source[source]["sem"])
+                h = np.arange(1, len(mean) + 1)
+                style = REFERENCE_STYLES.get(name, {"color": f"C{i}", "linestyle": "-"})
+                ax.plot(h, mean, label=name, linewidth=1.2, **style)
+                ax.fill_between(h, mean - sem, mean + sem, alpha=0.15, color=style["color"], linewidth=0)
+            if r == 0:
+                ax.set_title(f"{source} contexts", fontsize=9)
+            ax.grid(alpha=0.3)
+        axes[r, 0].set_ylabel(f"{regret} regret", fontsize=9)
+    for ax in axes[-1]:
         ax.set_xlabel("context size h")
-        ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel(f"weak regret (mean ± sem, {payload['n_eval_problems']} problems)")
-    axes[0, 0].legend()
-    fig.suptitle(figure_title(payload["title"], fig.get_figwidth()), fontsize=9)
+    axes[0, -1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1))
+    fig.suptitle(figure_title(f"{payload['title']}: mean ± sem over {payload['n_eval_problems']} problems",
+                              fig.get_figwidth()), fontsize=9)
     fig.savefig(path, dpi=120)
 
 

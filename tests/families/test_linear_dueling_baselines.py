@@ -216,7 +216,7 @@ def test_bayes_reference_beats_the_baselines_on_problems_from_the_prior() -> Non
 def test_duel_regrets_hand_computed() -> None:
     weak, strong = duel_regrets(np.array([[1.0, 0.5, -1.0]]), np.array([[0, 1, 2]]), np.array([[2, 2, 1]]))
     np.testing.assert_allclose(weak, [[0.0, 0.5, 0.5]])
-    np.testing.assert_allclose(strong, [[2.0, 2.5, 2.5]])
+    np.testing.assert_allclose(strong, [[1.0, 1.25, 1.25]])  # Δ = [0, 0.5, 2]: (0 + 2) / 2, (0.5 + 2) / 2 twice
 
 
 # ---- learning, determinism, vectorization -------------------------------------------------------------

@@ -27,6 +27,7 @@ from icprl_lightning.evaluation import (
     regret_curve,
     summarize_regret,
 )
+from icprl_lightning.evaluation.duels import baseline_curves, regret_curves, summarize_regrets
 from icprl_lightning.families.dueling_bandit.dts import DoubleThompsonSampling
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.metrics import WeakRegret
@@ -293,28 +294,36 @@ def _bandit_run(tmp_path, tiny_bandit):
     return config, checkpoint
 
 
-def test_icprl_evaluate_writes_weak_regret_of_the_run_dts_and_behaviour(tmp_path, tiny_bandit, capsys):
+def test_icprl_evaluate_writes_weak_and_strong_regret_of_the_run_and_every_baseline(tmp_path, tiny_bandit, capsys):
     config, checkpoint = _bandit_run(tmp_path, tiny_bandit)
     out = tmp_path / "bandit"
     main(["evaluate", "--seeds", "0", "1", "--title", "bandit", "--run", f"ICPO={config}:{checkpoint}",
           "--out", str(out)])
     table = json.loads(out.with_suffix(".json").read_text())
-    assert list(table["results"]) == ["ICPO", "dts", "behavior"] and table["reference_rows_from"] == "ICPO"
-    assert (table["n_eval_problems"], table["horizon"]) == (5, 200)
+    assert list(table["results"]) == ["ICPO", "dts", "maxinp", "bt_thompson", "bayes", "behavior"]
+    assert table["reference_rows_from"] == "ICPO" and (table["n_eval_problems"], table["horizon"]) == (5, 200)
     agent = load_agent(checkpoint)
-    for suite in tiny_bandit.bandit_suites():
+    for i, suite in enumerate(tiny_bandit.bandit_suites()):
         # per problem, the curve averaged over the two seeds; then mean ± sem over problems
-        per_seed = [evaluate_duels(agent, suite, "ICPO", seed) for seed in (0, 1)]
-        for name in ("ICPO", "dts", "behavior"):
-            curve = torch.stack([regret_curve(suite.expected_rewards, d[name]).double() for d in per_seed]).mean(0)
-            expected = summarize_regret(curve, with_tasks=True)
+        per_seed = [{name: regret_curves(suite.expected_rewards, pair)
+                     for name, pair in evaluate_duels(agent, suite, "ICPO", seed).items()} for seed in (0, 1)]
+        if i == 0:  # the feature-aware rows replayed on one source (each replay costs seconds)
+            for seed, played in zip((0, 1), per_seed, strict=True):
+                played.update(baseline_curves(suite, tiny_bandit.family, seed))
+        for name in per_seed[0]:
+            curves = {r: torch.stack([p[name][r].double() for p in per_seed]).mean(0) for r in ("weak", "strong")}
+            expected = summarize_regrets(curves, with_tasks=True)
             row = dict(table["results"][name][suite.source])
             assert row.pop("per_task") == {m: [pytest.approx(v)] for m, v in expected.pop("per_task").items()}
             assert row == pytest.approx(expected)
-            assert len(table["curves"][name][suite.source]["mean"]) == 200
-            assert table["curves"][name][suite.source]["mean"][-1] == pytest.approx(expected["weak_regret"])
+            assert {"weak_regret_h10", "strong_regret_h100", "strong_regret_auc"} <= set(row)
+            for key, regret in (("curves", "weak_regret"), ("strong_curves", "strong_regret")):
+                assert len(table[key][name][suite.source]["mean"]) == 200
+                assert table[key][name][suite.source]["mean"][-1] == pytest.approx(expected[regret])
     markdown = out.with_suffix(".md").read_text()
     assert "weak regret at h = H:" in markdown and "| ICPO |" in markdown and "| dts |" in markdown
+    assert "strong regret, mean over h = 1..H:" in markdown and "weak regret at h = 50:" in markdown
+    assert "| maxinp |" in markdown and "| bt_thompson |" in markdown and "| bayes |" in markdown
     assert out.with_suffix(".png").stat().st_size > 0
     printed = capsys.readouterr().out  # the tables, columns aligned
     assert "weak regret at h = H:" in printed and "| ICPO " in printed and f"wrote {out}.json" in printed

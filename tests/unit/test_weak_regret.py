@@ -1,4 +1,5 @@
-"""Weak regret reg(a, a') = min(R* − R(a), R* − R(a')), its torchmetrics accumulator, and the evaluation's curves."""
+"""Weak regret reg(a, a') = min(R* − R(a), R* − R(a')), strong regret (the average of the two gaps),
+the torchmetrics accumulator, and the evaluation's curves."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import pytest
 import torch
 
 from icprl_lightning.evaluation import curve_mean_sem, regret_curve, summarize_regret
-from icprl_lightning.metrics import WeakRegret, weak_regret
+from icprl_lightning.metrics import WeakRegret, strong_regret, weak_regret
 
 REWARDS = torch.tensor([
     [0.0, 1.0, 3.0, 2.0],     # R* = 3
@@ -28,6 +29,22 @@ def test_weak_regret_zero_when_either_arm_is_optimal() -> None:
     torch.testing.assert_close(weak_regret(REWARDS, first, second), torch.zeros(3))
     # Symmetric in the pair.
     torch.testing.assert_close(weak_regret(REWARDS, second, first), torch.zeros(3))
+
+
+def test_strong_regret_hand_computed_is_the_average_gap() -> None:
+    first = torch.tensor([0, 0, 2])
+    second = torch.tensor([1, 2, 1])
+    # [(3 + 2) / 2, (1.5 + 2.5) / 2, 0]: the duels of the weak case above
+    torch.testing.assert_close(strong_regret(REWARDS, first, second), torch.tensor([2.5, 2.0, 0.0]))
+    torch.testing.assert_close(strong_regret(REWARDS, second, first), torch.tensor([2.5, 2.0, 0.0]))
+    # zero only when both arms are optimal: an optimal arm beside a worse one costs half the worse one's gap
+    torch.testing.assert_close(strong_regret(REWARDS, torch.tensor([2, 3, 0]), torch.tensor([2, 0, 3])),
+                               torch.tensor([0.0, 0.75, 0.0]))
+    # a self-duel costs its arm's gap: arm 3 of row 0 (3 − 2), arm 1 of row 1 (0.5 − (−0.5))
+    torch.testing.assert_close(strong_regret(REWARDS, torch.tensor([3, 1, 1]), torch.tensor([3, 1, 1])),
+                               torch.tensor([1.0, 1.0, 0.0]))
+    with pytest.raises(ValueError, match="outside"):
+        strong_regret(REWARDS, torch.tensor([0, 1, 4]), torch.tensor([1, 2, 3]))
 
 
 def test_metric_accumulates_and_resets() -> None:

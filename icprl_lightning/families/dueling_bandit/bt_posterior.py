@@ -28,6 +28,7 @@ import numpy as np
 from icprl_lightning.validation import check_int, check_positive
 
 _STEP_SCALES = 0.5 ** np.arange(8)  # Newton step sizes tried, longest first
+_CONVERGED = 1e-10  # a Newton step no longer than this in every coordinate ends the iterations
 
 
 def win_counts(arms_first: np.ndarray, arms_second: np.ndarray, preferred: np.ndarray, n_arms: int) -> np.ndarray:
@@ -102,8 +103,9 @@ class BradleyTerryPosterior:
 
     def laplace(self, wins: np.ndarray, start: np.ndarray | None = None, newton_steps: int = 20
                 ) -> tuple[np.ndarray, np.ndarray]:
-        """Posterior mode ``[P, d]`` by ``newton_steps`` damped Newton steps from ``start`` (zeros if None),
-        and the precision at the mode ``[P, d, d]``."""
+        """Posterior mode ``[P, d]`` by at most ``newton_steps`` damped Newton steps from ``start`` (zeros if None),
+        and the precision at the mode ``[P, d, d]``. The steps stop early once no coordinate of any problem's
+        step exceeds ``_CONVERGED`` (the mode is then exact to rounding; warm starts get there in a few)."""
         check_int("BradleyTerryPosterior.laplace", "newton_steps", newton_steps, 1)
         forward, total = self.pair_counts(wins)
         theta = np.zeros((len(forward), self.dim)) if start is None else np.array(start, dtype=np.float64)
@@ -113,6 +115,8 @@ class BradleyTerryPosterior:
         for _ in range(newton_steps):
             gradient, precision = self._gradient_precision(theta, forward, total)
             step = np.linalg.solve(precision, gradient[..., None])[..., 0]  # [P, d]
+            if not np.abs(step).max(initial=0.0) > _CONVERGED:
+                return theta, precision
             # The full step where it does not lower the log posterior; elsewhere the longest of 1/2, 1/4, ...
             # that does not (no step if none does).
             full = self._log_posterior((theta + step)[:, None], forward, total)[:, 0]

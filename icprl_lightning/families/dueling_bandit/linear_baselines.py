@@ -13,13 +13,14 @@ context, ``select`` returns the next duel ``(first [P], second [P])`` and ``reco
 learner believes best. Everything is vectorized over P problems; the drivers loop over rounds only.
 
 * ``run_online``: play H rounds against a preference matrix and return the duels (a context dict, like
-  ``dts.run_dts``).
+  ``dts.run_dts``) and, on request, the arm recommended after each answer.
 * ``prefix_duels``: the offline protocol of ``evaluation/duels.py`` — after each prefix D_{1:h} of a
   fixed context, the learner's duel; column h − 1 is the duel after h comparisons, scored by weak regret
   exactly as ICPO's and DTS's duels are. ``prefix_recommendations``: the learner's best-arm guess after
   each prefix, for ICPO's protocol (that arm and a uniformly random other one).
-* ``duel_regrets``: weak regret min(Δ(a), Δ(a')) and strong regret Δ(a) + Δ(a') (Yue et al. 2012,
-  "The K-armed dueling bandits problem"), Δ(a) = R* − r(a).
+* ``duel_regrets``: weak regret min(Δ(a), Δ(a')) and strong regret (Δ(a) + Δ(a')) / 2, Δ(a) = R* − r(a)
+  (``metrics.weak_regret`` / ``metrics.strong_regret`` on numpy arrays of any trailing shape; the strong
+  regret is the standard average of the two gaps, see ``metrics``).
 
 Hyperparameters (prior variance, exploration scale, posterior scale) must be chosen on training problems
 only; ``tuning.py`` does that on the family's training split.
@@ -104,11 +105,12 @@ class LinearDuelingLearner(ABC):
 
 
 def run_online(learner: LinearDuelingLearner, preference_matrix: np.ndarray, horizon: int,
-               rng: np.random.Generator) -> dict[str, np.ndarray]:
+               rng: np.random.Generator, recommend: bool = False) -> dict[str, np.ndarray]:
     """Play ``horizon`` rounds; labels y ~ Bernoulli(``preference_matrix[p, first, second]``) from ``rng``.
 
     ``preference_matrix`` is ``[P, A, A]`` (``LinearDuelingBanditFamily.preference_matrix``); returns
-    ``{"arms_first", "arms_second": int64 [P, H], "preferred": uint8 [P, H]}`` like ``dts.run_dts``.
+    ``{"arms_first", "arms_second": int64 [P, H], "preferred": uint8 [P, H]}`` like ``dts.run_dts`` and, with
+    ``recommend``, ``"recommended"`` int64 [P, H]: the learner's ``recommend``-ed arm after answer h.
     """
     check_int("run_online", "horizon", horizon, 1)
     matrix = np.asarray(preference_matrix, dtype=np.float64)
@@ -118,12 +120,16 @@ def run_online(learner: LinearDuelingLearner, preference_matrix: np.ndarray, hor
     out = {"arms_first": np.empty((learner.n_problems, horizon), dtype=np.int64),
            "arms_second": np.empty((learner.n_problems, horizon), dtype=np.int64),
            "preferred": np.empty((learner.n_problems, horizon), dtype=np.uint8)}
+    if recommend:
+        out["recommended"] = np.empty((learner.n_problems, horizon), dtype=np.int64)
     problems = np.arange(learner.n_problems)
     for h in range(horizon):
         first, second = learner.select()
         label = (rng.random(learner.n_problems) < matrix[problems, first, second]).astype(np.uint8)
         learner.update(first, second, label)
         out["arms_first"][:, h], out["arms_second"][:, h], out["preferred"][:, h] = first, second, label
+        if recommend:  # the refit it needs is the one the next select uses
+            out["recommended"][:, h] = learner.recommend()
     return out
 
 
@@ -160,7 +166,7 @@ def prefix_recommendations(learner: LinearDuelingLearner, arms_first: np.ndarray
 
 
 def duel_regrets(expected_rewards: np.ndarray, first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weak min(Δ(a), Δ(a')) and strong Δ(a) + Δ(a') regret of duels ``[P, ...]`` given rewards ``[P, A]``."""
+    """Weak min(Δ(a), Δ(a')) and strong (Δ(a) + Δ(a')) / 2 regret of duels ``[P, ...]`` given rewards ``[P, A]``."""
     rewards = np.asarray(expected_rewards, dtype=np.float64)
     first, second = np.asarray(first), np.asarray(second)
     if rewards.ndim != 2 or first.shape != second.shape or first.shape[:1] != rewards.shape[:1]:
@@ -169,4 +175,4 @@ def duel_regrets(expected_rewards: np.ndarray, first: np.ndarray, second: np.nda
     gap = rewards.max(-1, keepdims=True) - rewards  # Δ(a) ≥ 0, [P, A]
     flat = first.reshape(len(first), -1), second.reshape(len(second), -1)
     gap_first, gap_second = (np.take_along_axis(gap, arms, axis=1).reshape(first.shape) for arms in flat)
-    return np.minimum(gap_first, gap_second), gap_first + gap_second
+    return np.minimum(gap_first, gap_second), (gap_first + gap_second) / 2
