@@ -77,3 +77,12 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/darkroom_generation.py
+
+# The documentation site (mkdocs.yml): `make docs` builds it into site/ and fails on any broken link or missing
+# page; `make docs-serve` serves it at http://127.0.0.1:8000 and rebuilds on every change.
+.PHONY: docs docs-serve
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
+
+docs-serve: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs serve
