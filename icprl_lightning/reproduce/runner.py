@@ -307,12 +307,21 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--dry-run", action="store_true", help="print the fit commands, run nothing")
     parser.add_argument("--only", nargs="+", metavar="RUN", help="train only these runs (and the earlier stages "
                         "they need), evaluate nothing")
+    parser.add_argument("--render", action="store_true", help="only rewrite the generated docs from the JSON in "
+                        "docs/results: each table's summary.md (bootstrap intervals), the index, the claims table of "
+                        "docs/RESULTS.md and README.md (reproduce/render.py)")
     parser.add_argument("--redraw", action="store_true", help="only redraw the figures from the table's JSON "
                         "outputs in --out (after a change to the figure code)")
     args = parser.parse_args(argv)
     if args.jobs < 1:
         parser.error(f"--jobs must be ≥ 1, got {args.jobs}")
     try:  # a user's file, not a bug: one line, no traceback
+        if args.render:
+            from icprl_lightning.reproduce.render import render
+
+            for path in render():
+                print(f"wrote {path}", flush=True)
+            return {}
         if args.list or args.table is None:
             for table in load_tables().values():
                 runs = f"{len(table.runs)} runs of {table.runs_from}" if table.runs_from else f"{len(table.runs)} runs"
