@@ -93,6 +93,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--contexts", nargs="+", choices=DIAGNOSTICS, default=["own"],
                         help="context diagnostics beside the own-context rows: flipped_labels, random_labels, "
                         "other_task, shuffled_order (evaluation.diagnostics)")
+    parser.add_argument("--no-baselines", action="store_true", help="dueling bandits: only the runs' rows, without "
+                        "DTS, MaxInP, BT Thompson sampling, the Bayes reference and behaviour (minutes on 200 problems)")
     parser.add_argument("--title", default="held-out tasks", help="figure title")
     parser.add_argument("--out", help="output path without extension (default: <run dir>/eval/<date-time> of the "
                         "first checkpoint)")
@@ -237,7 +239,7 @@ def bandit_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | N
     results, curves, diagnostics = {}, {}, {}
     for name, (_, checkpoints) in args.runs.items():
         summaries, run_curves = evaluate_bandit(datamodules[name], checkpoints, name, args.seeds, greedy,
-                                                baselines=name == args.reference)
+                                                baselines=name == args.reference and not args.no_baselines)
         results.update(summaries)  # the run's own row, and the reference run's baseline rows
         for regret, per_method in run_curves.items():
             curves.setdefault(regret, {}).update(per_method)
