@@ -60,11 +60,12 @@ def test_a_changed_json_makes_its_summary_stale(tmp_path, monkeypatch):
     root = tmp_path / "docs" / "results"
     shutil.copytree(REPO / "docs/results/darkroom_ipref", root / "darkroom_ipref")
     shutil.copytree(REPO / "configs", tmp_path / "configs")
+    (tmp_path / "docs").mkdir(exist_ok=True)
     (tmp_path / "README.md").write_text("x\n" + "\n".join(render.README_MARKERS) + "\n")
     monkeypatch.chdir(tmp_path)
     keep = {"darkroom_ipref"}
     claims = [c for c in render.read_claims() if c.table in keep]
-    (tmp_path / "configs/claims.yaml").write_text(json.dumps([c.__dict__ for c in claims]))
+    (tmp_path / "docs/claims.yaml").write_text(json.dumps([c.__dict__ for c in claims]))
     render.render(root, figures=False)
     assert render.stale(root) == []
     path = root / "darkroom_ipref" / "darkroom_ipref.json"
