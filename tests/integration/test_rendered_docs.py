@@ -58,10 +58,11 @@ def test_a_changed_json_makes_its_summary_stale(tmp_path, monkeypatch):
     import shutil
 
     root = tmp_path / "docs" / "results"
+    root.mkdir(parents=True)
     shutil.copytree(REPO / "docs/results/darkroom_ipref", root / "darkroom_ipref")
     shutil.copytree(REPO / "configs", tmp_path / "configs")
-    (tmp_path / "docs").mkdir(exist_ok=True)
     (tmp_path / "README.md").write_text("x\n" + "\n".join(render.README_MARKERS) + "\n")
+    (tmp_path / "docs/pretrained.md").write_text("\n".join(render.PRETRAINED_MARKERS) + "\n")
     monkeypatch.chdir(tmp_path)
     keep = {"darkroom_ipref"}
     claims = [c for c in render.read_claims(REPO / "docs/claims.yaml") if c.table in keep]
