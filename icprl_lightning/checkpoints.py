@@ -57,7 +57,8 @@ CHECKSUM_KEY = "icprl_sha256"
 SEAL_KEY = "icprl_seal"
 METHODS = ("icprl_lightning.methods.dpt.DPTModule", "icprl_lightning.methods.dpt.DP2TModule",
            "icprl_lightning.methods.icpo.ICPOModule", "icprl_lightning.methods.reward_gen.RewardGenModule",
-           "icprl_lightning.methods.dit.DITModule", "icprl_lightning.methods.icrg.ICRGModule")
+           "icprl_lightning.methods.dit.DITModule", "icprl_lightning.methods.icrg.ICRGModule",
+           "icprl_lightning.methods.ad.ADModule")
 LIGHTNING_SPECIAL_PATHS = ("best", "last", "hpc")  # ``ckpt_path`` values the Trainer resolves itself
 FLAT_BACKBONE = ("n_layer", "n_embd", "n_head", "dropout")  # the backbone's sizes, as earlier versions saved them
 

@@ -255,7 +255,8 @@ def index_page(root: Path) -> str:
 class Claim:
     """A claim "A beats B" read from one JSON of a table: rows ``a`` and ``b`` in each of ``columns``.
 
-    A row is a results row (``ICPO``, ``behavior``) or a diagnostic of one (``ICPO@flipped_labels``);
+    A row is a results row (``ICPO``, ``behavior``) or a diagnostic of one (``ICPO@flipped_labels``); ``b`` may
+    list several rivals, each with its own verdicts;
     ``labels`` names the row whose own context is set against its flipped labels (*labels read?*).
     """
 
@@ -265,7 +266,7 @@ class Claim:
     file: str
     columns: list[str]
     a: str
-    b: str
+    b: str | list[str]
     labels: str | None = None
 
 
@@ -284,26 +285,34 @@ def _cell(payload: dict[str, Any], where: str, row: str, column: str, metric: st
 
 
 def claim_row(root: Path, claim: Claim) -> str:
+    """One row of the claims table: per row ``b`` (one or several), the verdict and Δ per column."""
     path = root / claim.table / f"{claim.file}.json"
     payload = json.loads(path.read_text())
     metric = main_metric(payload)
-    verdicts, numbers, labels = [], [], []
-    for column in claim.columns:
-        a = _cell(payload, str(path), claim.a, column, metric.key)
-        b = _cell(payload, str(path), claim.b, column, metric.key)
-        diff = difference(a, b)
-        verdicts.append(verdict(diff, metric.higher_is_better))
-        numbers.append(f"{column}: {number(interval(a, 'mean').point)} vs {number(interval(b, 'mean').point)}, "
-                       f"Δ {with_interval(diff)}")
-        if claim.labels:
-            own = _cell(payload, str(path), claim.labels, column, metric.key)
-            flipped = _cell(payload, str(path), f"{claim.labels}@flipped_labels", column, metric.key)
-            labels.append({"holds": "yes", "tie": "no", "reversed": "inverted"}[
-                verdict(difference(own, flipped), metric.higher_is_better)])
+    rivals = [claim.b] if isinstance(claim.b, str) else list(claim.b)
+    verdicts, numbers = [], []
+    for rival in rivals:
+        per_column, deltas = [], []
+        for column in claim.columns:
+            a = _cell(payload, str(path), claim.a, column, metric.key)
+            b = _cell(payload, str(path), rival, column, metric.key)
+            diff = difference(a, b)
+            per_column.append(verdict(diff, metric.higher_is_better))
+            deltas.append(f"{column}: {number(interval(a, 'mean').point)} vs {number(interval(b, 'mean').point)}, "
+                          f"Δ {with_interval(diff)}")
+        prefix = f"vs {rival}: " if len(rivals) > 1 else ""
+        verdicts.append(prefix + " / ".join(per_column))
+        numbers.append(f"{claim.a} vs {rival}: " + "; ".join(deltas))
+    labels = []
+    for column in claim.columns if claim.labels else []:
+        own = _cell(payload, str(path), claim.labels, column, metric.key)
+        flipped = _cell(payload, str(path), f"{claim.labels}@flipped_labels", column, metric.key)
+        labels.append({"holds": "yes", "tie": "no", "reversed": "inverted"}[
+            verdict(difference(own, flipped), metric.higher_is_better)])
     n = shape(_cell(payload, str(path), claim.a, claim.columns[0], metric.key))
-    number_cell = f"{claim.a} vs {claim.b}, {metric.key} ({n}): " + "; ".join(numbers)
+    number_cell = f"{metric.key} ({n}); " + "; ".join(numbers)
     labels_cell = " / ".join(labels) if labels else "–"
-    return (f"| {claim.claim} | {claim.setting} | **{' / '.join(verdicts)}** | {number_cell} | {labels_cell} | "
+    return (f"| {claim.claim} | {claim.setting} | **{'; '.join(verdicts)}** | {number_cell} | {labels_cell} | "
             f"`icprl reproduce {claim.table}` |")
 
 
