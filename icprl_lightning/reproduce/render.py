@@ -2,6 +2,7 @@
 
 ``icprl reproduce --render`` reads every ``icprl evaluate`` JSON under ``docs/results/<table>/`` and writes
 
+* ``docs/results/<table>/<name>.md`` — the tables ``icprl evaluate`` printed, rendered again from ``<name>.json``;
 * ``docs/results/<table>/summary.md`` — per JSON, per column (context quality or bandit context source), every
   row's IQM and mean with stratified bootstrap 95% intervals over training seeds × held-out tasks
   (``statistics``), each preference method's context diagnostics right below its own-context row, and the
@@ -386,8 +387,12 @@ def pretrained_table() -> str:
 
 def rendered(root: Path = RESULTS) -> dict[Path, str]:
     """Every generated text page, path -> content (the figures are drawn by ``render``)."""
+    from icprl_lightning.evaluation.report import markdown_tables
+
     pages: dict[Path, str] = {}
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+        for name, payload in evaluations_in(folder):  # the tables `icprl evaluate` printed, from their JSON
+            pages[folder / f"{name}.md"] = markdown_tables(payload)
         page = summary_page(folder)
         if page is not None:
             pages[folder / "summary.md"] = page
