@@ -125,7 +125,8 @@ def main(args: Sequence[str] | None = None) -> Path:
     parser.add_argument("--eval-episodes", type=int, default=10)
     parser.add_argument("--test-episodes", type=int, default=50)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for these MLPs)")
-    parser.add_argument("--out", type=Path, default=Path("docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json"))
+    parser.add_argument("--out", type=Path,
+                        default=Path("docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json"))
     ns = parser.parse_args(args)
     torch.set_num_threads(ns.threads)
     family = DarkRoomFamily(seed=ns.family_seed)

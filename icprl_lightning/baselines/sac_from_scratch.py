@@ -103,7 +103,8 @@ def main(args: Sequence[str] | None = None) -> Path:
     parser.add_argument("--eval-episodes", type=int, default=2)
     parser.add_argument("--test-episodes", type=int, default=10)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for these MLPs)")
-    parser.add_argument("--out", type=Path, default=Path("docs/results/sac_from_scratch/sac_from_scratch_metaworld.json"))
+    parser.add_argument("--out", type=Path,
+                        default=Path("docs/results/sac_from_scratch/sac_from_scratch_metaworld.json"))
     ns = parser.parse_args(args)
     torch.set_num_threads(ns.threads)
     goals = ReachTaskFamily(seed=ns.family_seed).test_goals

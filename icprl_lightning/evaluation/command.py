@@ -93,8 +93,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--contexts", nargs="+", choices=DIAGNOSTICS, default=["own"],
                         help="context diagnostics beside the own-context rows: flipped_labels, random_labels, "
                         "other_task, shuffled_order (evaluation.diagnostics)")
-    parser.add_argument("--no-baselines", action="store_true", help="dueling bandits: only the runs' rows, without "
-                        "DTS, MaxInP, BT Thompson sampling, the Bayes reference and behaviour (minutes on 200 problems)")
+    parser.add_argument("--no-baselines", action="store_true", help="dueling bandits: only the runs' rows, "
+                        "without DTS, MaxInP, BT Thompson sampling, the Bayes reference and behaviour (minutes on "
+                        "200 problems)")
     parser.add_argument("--title", default="held-out tasks", help="figure title")
     parser.add_argument("--out", help="output path without extension (default: <run dir>/eval/<date-time> of the "
                         "first checkpoint)")

@@ -6,11 +6,11 @@ A run of ``icprl evaluate`` pairs a config (whose data section names the held-ou
 ``max_context`` = the context length) and checks the context kind (``validation.pairing_errors``); a
 checkpoint evaluated with another config skips both, and would fail late (a shape error deep in a
 rollout) or, worse, run on data it was never trained for. ``run_datamodule`` builds the config's
-DataModule (nothing generated), reads every checkpoint as untrusted (``hub.load_model``: a ``.ckpt``, a model directory or a shipped
-model's short name) and
-compares the two, so a bandit checkpoint with an MDP config (or the reverse), a RewardGen reward model,
-or a model of another size is one ``ValueError`` naming the run, the checkpoint and the config. The data side is
-read through the data contract (``data_contract.PreferenceData``): its sizes and the evaluations it ``offers``.
+DataModule (nothing generated), reads every checkpoint as untrusted (``hub.load_model``: a ``.ckpt``, a model
+directory or a shipped model's short name) and compares the two, so a bandit checkpoint with an MDP config (or
+the reverse), a RewardGen reward model, or a model of another size is one ``ValueError`` naming the run, the
+checkpoint and the config. The data side is read through the data contract (``data_contract.PreferenceData``):
+its sizes and the evaluations it ``offers``.
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ from typing import Any
 
 import yaml
 
-from icprl_lightning.hub import load_model
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.data_contract import PreferenceData, missing_members
+from icprl_lightning.hub import load_model
 from icprl_lightning.validation import consumed_kinds
 
 

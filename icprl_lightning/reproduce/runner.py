@@ -333,7 +333,8 @@ def main(argv: list[str] | None = None) -> dict:
             sources = redraw(table, Path(args.out) / table.name)
             print(f"{table.name}: figures redrawn from {', '.join(map(str, sources))}", flush=True)
             return {}
-        return reproduce(table, args.seeds, args.jobs, Path(args.work), Path(args.out) / table.name, args.refit, args.dry_run,
+        return reproduce(table, args.seeds, args.jobs, Path(args.work), Path(args.out) / table.name, args.refit,
+                         args.dry_run,
                          args.threads, args.only)
     except (RecordError, TableError) as e:
         parser.exit(2, f"{parser.prog}: error: {e}\n")

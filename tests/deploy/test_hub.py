@@ -280,3 +280,32 @@ def test_the_shipped_bandit_icpo_reproduces_its_card(tmp_path):
     assert weak.mean() == pytest.approx(stored["weak_regret"], abs=1e-6)
     # per problem: the same duels (a rare argmax tie broken differently by another CPU's rounding may differ)
     assert np.mean(np.isclose(weak, stored["per_task"]["weak_regret"], atol=1e-6)) >= 0.98
+
+
+MDP_MODELS = [name for name in shipped_models()
+              if "LinearDuelingBandit" not in read_config(resolve(name))["family"]["class_path"]]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", MDP_MODELS)
+def test_each_shipped_mdp_model_returns_what_its_card_says(name, tmp_path):
+    """Deployed by name on the held-out contexts of its lowest quality (the data regenerated from config.json's
+    training config), with the card's episode seeds, its mean normalized return lies in the card's interval."""
+    from icprl_lightning.data.config import datamodule_from_config
+    from icprl_lightning.evaluation.rollout import episode_stats, rollout_seeds
+    from icprl_lightning.reproduce.render import main_metric, trained_rows
+    from icprl_lightning.reproduce.statistics import interval, scores_of
+
+    directory = resolve(name)
+    config = read_config(directory)
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump({"data": config["training_config"]["data"]}))
+    dm = datamodule_from_config(tmp_path / "config.yaml", root_dir=str(tmp_path / "data"), progress=False)
+    dm.prepare_data()
+    suite = dm.evaluation_suites()[0]
+    payload = json.loads((directory / RESULTS).read_text())
+    metric = main_metric(payload)
+    row = payload["results"][trained_rows(payload)[0]][suite.quality]
+    episodes = rollout_seeds(lambda s: load_agent(name, seed=s), suite, payload["seeds"])
+    deployed = episode_stats(suite, episodes)[metric.key]
+    stored = interval(scores_of(row, metric.key), "mean")
+    assert stored.low <= deployed <= stored.high, (deployed, stored)

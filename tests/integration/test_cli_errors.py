@@ -85,7 +85,8 @@ def test_help_lists_every_subcommand_without_importing_torch_or_lightning():
 @pytest.mark.parametrize(("argv", "expected"), [
     (["oracle", "trian"], "icprl oracle: error: unknown verb 'trian' (did you mean 'train'?); icprl oracle --help "
                           "lists them\n"),
-    (["baseline"], "icprl baseline: error: name one of sac, dqn, tune-bandit; icprl baseline --help says what each does\n"),
+    (["baseline"], "icprl baseline: error: name one of sac, dqn, tune-bandit; icprl baseline --help says what each "
+                   "does\n"),
     (["analyze", "label_ceiling"], "icprl analyze: error: unknown verb 'label_ceiling' (did you mean "
                                    "'label-ceiling'?); icprl analyze --help lists them\n"),
 ])

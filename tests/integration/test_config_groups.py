@@ -110,14 +110,16 @@ def test_every_public_config_has_its_data_group():
     groups = {config for group in DATA_GROUPS for config in _named_configs(group)}
     public = {f"configs/{p.name}" for p in REPO.glob("configs/*.yaml")
               if "data" in (yaml.safe_load(p.read_text()) or {})
-              and p.stem not in ("smoke", "recorded_icpo", "ad_darkroom")}  # a run, recorded data, a learner's histories
+              # not family x setting: the smoke run, recorded data, a learner's histories
+              and p.stem not in ("smoke", "recorded_icpo", "ad_darkroom")}
     assert public <= groups, sorted(public - groups)
 
 
 def test_a_data_group_swaps_the_family_and_keeps_the_methods_flags(monkeypatch, tmp_path):
     """ICPO's DarkRoom config on the bandit group: the family and setting are the bandit's, ICPO's pairs stay."""
     monkeypatch.chdir(tmp_path)
-    data = run_cli(["--config", CONFIG, "--data", str(REPO / "configs/data/bandit_duels.yaml")], run=False).config["data"]
+    bandit = str(REPO / "configs/data/bandit_duels.yaml")
+    data = run_cli(["--config", CONFIG, "--data", bandit], run=False).config["data"]
     assert data["init_args"]["family"]["class_path"].endswith("LinearDuelingBanditFamily")
     assert data["init_args"]["setting"]["class_path"].endswith("BanditDuels")
     assert data["init_args"]["pairs"] is True
