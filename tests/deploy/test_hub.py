@@ -282,11 +282,11 @@ def test_the_shipped_bandit_icpo_reproduces_its_card(tmp_path):
     assert np.mean(np.isclose(weak, stored["per_task"]["weak_regret"], atol=1e-6)) >= 0.98
 
 
-MDP_MODELS = [name for name in shipped_models()
-              if "LinearDuelingBandit" not in read_config(resolve(name))["family"]["class_path"]]
+MDP_MODELS = [pytest.param(name, marks=[pytest.mark.slow] if "Reach" in family else [])  # MuJoCo rollouts: slow
+              for name in shipped_models()
+              if "LinearDuelingBandit" not in (family := read_config(resolve(name))["family"]["class_path"])]
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", MDP_MODELS)
 def test_each_shipped_mdp_model_returns_what_its_card_says(name, tmp_path):
     """Deployed by name on the held-out contexts of its lowest quality (the data regenerated from config.json's

@@ -74,7 +74,9 @@ def test_a_changed_json_makes_its_summary_stale(tmp_path, monkeypatch):
     assert render.stale(root) == []
     path = root / "darkroom_ipref" / "darkroom_ipref.json"
     payload = json.loads(path.read_text())
-    payload["results"]["ICPO"]["low"]["per_seed"]["normalized_return"][0] += 0.5
+    cell = payload["results"]["ICPO"]["low"]
+    cell["per_seed"]["normalized_return"][0] += 0.5
+    cell["per_task"]["normalized_return"][0] = [v + 0.5 for v in cell["per_task"]["normalized_return"][0]]
     path.write_text(json.dumps(payload))
     stale = {p.name for p in render.stale(root)}
     assert {"summary.md", "RESULTS.md", "README.md"} <= stale
