@@ -101,6 +101,7 @@ class LearningHistoryDataModule(L.LightningDataModule):
         data_dir: the dataset directory; by default one named by the config under ``root_dir``.
         overwrite: regenerate even when the dataset exists.
         verify_checksums: check every file's SHA-256 when loading.
+        progress: say when the histories are generated (as the other DataModules do).
     """
 
     pairs = False          # a window is its own context and its own targets: nothing served beside it
@@ -111,7 +112,7 @@ class LearningHistoryDataModule(L.LightningDataModule):
                  histories_per_goal: int = 2, val_histories_per_goal: int = 1, context_episodes: int = 2,
                  windows_per_epoch: int = 2048, val_windows_per_history: int = 4, batch_size: int = 16,
                  data_dir: str | None = None, root_dir: str = "data", overwrite: bool = False,
-                 verify_checksums: bool = True) -> None:
+                 verify_checksums: bool = True, progress: bool = True) -> None:
         owner = type(self).__name__
         if not isinstance(family, DarkRoomFamily):
             raise HyperparameterError(f"{owner}: family must be a DarkRoomFamily (the tabular learner's grid), got "
@@ -134,7 +135,7 @@ class LearningHistoryDataModule(L.LightningDataModule):
         self.windows_per_epoch, self.val_windows_per_history = windows_per_epoch, val_windows_per_history
         self.batch_size = batch_size
         self.data_dir, self.root_dir = data_dir, root_dir
-        self.overwrite, self.verify_checksums = overwrite, verify_checksums
+        self.overwrite, self.verify_checksums, self.progress = overwrite, verify_checksums, progress
         self.dataset: StoredDataset | None = None
 
     # ---- the data contract (data_contract.PreferenceData) ----------------------------------------------
@@ -217,6 +218,8 @@ class LearningHistoryDataModule(L.LightningDataModule):
                 self._read(verify=False)
                 return
             check_replaceable_dataset(path)
+            if self.progress:  # one line: the whole generation takes about a second
+                print(f"generating learning histories -> {path}", flush=True)
             splits, info = self.generate()
             write_dataset(path, splits, self.generator_config(), info=info, overwrite=True)
         self.overwrite = False
