@@ -7,6 +7,9 @@
     icprl evaluate --run NAME=CONFIG:CKPT [...]                        (evaluation/command.py)
     icprl evaluate online --config CONFIG --ckpt CKPT [...]            (evaluation/online_command.py)
     icprl import arrays.npz --out data/mine --kind step_preference --n-actions 5   (data/importer.py)
+    icprl import exports/ipref_hf --format hf --out data/mine       (also parquet, minari, trl, bpref)
+    icprl export-data data/<dataset> --format hf|parquet|minari --out DIR          (data/interop/)
+    icprl export runs/.../last.ckpt --out DIR     (a Hugging Face-style model directory, hub.py)
     icprl report runs/icprl/<run id>                                   (evaluation/run_report.py)
     icprl checkpoint verify|stamp PATH ...                             (checkpoints.py)
     icprl oracle train|export ...                 (families/metaworld_reach/sac.py, sac_weights.py)
@@ -46,7 +49,8 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
     "evaluate": ("icprl_lightning.evaluation.command", "main",
                  "deploy checkpoints on held-out tasks, with the context diagnostics"),
     "reproduce": ("icprl_lightning.reproduce", "main", "train and evaluate every run of a results table"),
-    "import": ("icprl_lightning.data.importer", "main", "import recorded preference arrays as a dataset"),
+    "import": ("icprl_lightning.data.importer", "main",
+               "import recorded preference data (npz, HF datasets, Parquet, Minari, TRL rows, B-Pref labels)"),
     "export-data": ("icprl_lightning.data.interop.command", "main",
                     "write a dataset as Hugging Face datasets (Arrow), Parquet or Minari"),
     "report": ("icprl_lightning.evaluation.run_report", "main",
