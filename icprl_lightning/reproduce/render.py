@@ -299,7 +299,7 @@ def claim_row(root: Path, claim: Claim) -> str:
             b = _cell(payload, str(path), rival, column, metric.key)
             diff = difference(a, b)
             per_column.append(verdict(diff, metric.higher_is_better))
-            deltas.append(f"{column}: {number(interval(a, 'mean').point)} vs {number(interval(b, 'mean').point)}, "
+            deltas.append(f"{column}: {number(a.values.mean())} vs {number(b.values.mean())}, "
                           f"Δ {with_interval(diff)}")
         prefix = f"vs {rival}: " if len(rivals) > 1 else ""
         verdicts.append(prefix + " / ".join(per_column))
@@ -377,7 +377,7 @@ def pretrained_table() -> str:
                 for column, cell in cells.items())
             diagnosed = (payload.get("diagnostics") or {}).get(row, {}).get("flipped_labels")
             if diagnosed:
-                flipped = "; ".join(f"{column} {number(interval(scores_of(cell, metric.key), 'mean').point)}"
+                flipped = "; ".join(f"{column} {number(scores_of(cell, metric.key).values.mean())}"
                                     for column, cell in diagnosed.items())
         method = config["method"].rsplit(".", 1)[-1].removesuffix("Module")
         lines.append(f"| `{name}` | {method} | {family}, {setting}, seed {config.get('seed')} | "
