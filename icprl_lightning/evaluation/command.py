@@ -96,6 +96,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--no-baselines", action="store_true", help="dueling bandits: only the runs' rows, "
                         "without DTS, MaxInP, BT Thompson sampling, the Bayes reference and behaviour (minutes on "
                         "200 problems)")
+    parser.add_argument("--data", action="append", default=[], metavar="FILE",
+                        help="a YAML data section stacked on every run's config (e.g. configs/eval/"
+                        "reach_fresh_goals.yaml: other held-out tasks); the checkpoints are unchanged")
     parser.add_argument("--title", default="held-out tasks", help="figure title")
     parser.add_argument("--out", help="output path without extension (default: <run dir>/eval/<date-time> of the "
                         "first checkpoint)")
@@ -111,6 +114,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             parser.error(f"--run name {name!r} is taken (reference rows: {', '.join(sorted(RESERVED))}; "
                          "names must be unique)")
         args.runs[name] = (config, checkpoint)
+    for path in args.data:
+        if not Path(path).is_file():
+            fail(parser, f"--data {path}: no such file")
     args.diagnostics = [d for d in dict.fromkeys(args.contexts) if d != "own"]
     args.reference = args.reference or next(iter(args.runs))
     if args.reference not in args.runs:
@@ -288,7 +294,7 @@ def main(argv: list[str] | None = None) -> dict:
     datamodules = {}
     for name, (config, checkpoints) in args.runs.items():  # every check before any dataset is generated
         try:
-            datamodules[name] = run_datamodule(name, config, checkpoints)
+            datamodules[name] = run_datamodule(name, config, checkpoints, args.data)
         except ValueError as e:
             fail(args.parser, str(e))
     kinds = {name: is_bandit_data(dm) for name, dm in datamodules.items()}
@@ -305,6 +311,8 @@ def main(argv: list[str] | None = None) -> dict:
                               "evaluate on (recorded data has no simulator); use a task family's config")
     actions_used = "sampled" if args.sample else "greedy" if args.greedy else "each method's default"
     payload: dict[str, Any] = {"title": args.title, "seeds": args.seeds, "actions": actions_used}
+    if args.data:
+        payload["data_overlays"] = args.data
     payload.update((bandit_payload if bandit else rollout_payload)(args, datamodules, greedy))
     write_outputs(payload, args.out)
     print(aligned_tables(markdown_tables(payload)), flush=True)

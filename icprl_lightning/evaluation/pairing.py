@@ -16,6 +16,7 @@ its sizes and the evaluations it ``offers``.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from typing import Any
 
 import yaml
@@ -58,18 +59,27 @@ def fit_errors(module: Any, datamodule: PreferenceData) -> list[str]:
     return errors
 
 
+# jsonargparse's lines about the Union (data: DataModule | None) it tried, around the one that names the problem.
+_UNION_NOISE = ("Does not validate against any of the Union subtypes", "Subtypes:", "Errors:",
+                "- Expected a <class 'NoneType'>", "Given value type:", "Given value:")
+
+
 def _config_error(error: BaseException) -> str:
-    """jsonargparse and yaml spread one problem over several lines: join them into one, short."""
-    return " ".join(line.strip() for line in str(error).splitlines() if line.strip())[:300]
+    """jsonargparse and yaml spread one problem over several lines: join them into one, short, keeping the line
+    that names the wrong key or value."""
+    lines = [line.strip().removeprefix("- ") for line in str(error).splitlines()]
+    return " ".join(line for line in lines if line and not line.startswith(_UNION_NOISE))[:400]
 
 
-def run_datamodule(name: str, config: str, checkpoints: list[str]) -> PreferenceData:
-    """``config``'s DataModule (no data generated yet) after checking every checkpoint of run ``name`` fits it;
-    else one ``ValueError`` naming the run, the file and what does not fit."""
+def run_datamodule(name: str, config: str, checkpoints: list[str], data: Sequence[str] = ()) -> PreferenceData:
+    """``config``'s DataModule, with the data sections of the files ``data`` stacked on it (no data generated
+    yet), after checking every checkpoint of run ``name`` fits it; else one ``ValueError`` naming the run, the
+    file and what does not fit."""
     try:
-        datamodule = datamodule_from_config(config)
+        datamodule = datamodule_from_config(config, *data)
     except (OSError, ValueError, yaml.YAMLError, argparse.ArgumentError) as e:
-        raise ValueError(f"--run {name}: config {config} does not give a DataModule ({_config_error(e)})") from None
+        files = " + ".join([config, *data])
+        raise ValueError(f"--run {name}: config {files} does not give a DataModule ({_config_error(e)})") from None
     if not isinstance(datamodule, PreferenceData):
         raise ValueError(f"--run {name}: config {config} gives {type(datamodule).__name__}, which does not implement "
                          f"the data contract (icprl_lightning.data_contract.PreferenceData): it lacks "

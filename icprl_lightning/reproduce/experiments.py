@@ -15,6 +15,7 @@ them. Its file says what ``Table`` holds; only ``title`` and ``runs`` are requir
         evaluated: false                             # an earlier stage that is no policy: trained, not deployed
         checkpoint: best                             # the checkpoint its record keeps (default last)
     evaluations: [{suffix: "", act: greedy}, {suffix: _sampled, act: sample}]   # the default
+                                                   # (data: [FILE]: icprl evaluate --data FILE, other held-out tasks)
     contexts: [own, random_labels, flipped_labels, other_task]                  # the default
     eval_seeds: [0, 1]                                                          # the default
     baselines: {DQN from scratch: docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json}
@@ -308,11 +309,15 @@ class _Reader:
     # ---- evaluations ----------------------------------------------------------------------------------------------
 
     def evaluation(self, where: str, data: Any) -> Evaluation | OnlineEvaluation:
-        data = self.keys(where, data, ("suffix", "act", "online"), ("suffix",))
+        data = self.keys(where, data, ("suffix", "act", "data", "online"), ("suffix",))
         suffix = self.text(f"{where}.suffix", data["suffix"])
         if "online" not in data:
             act = self.choice(f"{where}.act", data["act"], tuple(ACTS)) if "act" in data else None
-            return Evaluation(suffix, ACTS[act] if act else ())
+            files = tuple(self.file(f"{where}.data[{i}]", f) for i, f in enumerate(self.texts(f"{where}.data",
+                                                                                              data.get("data", []))))
+            return Evaluation(suffix, ACTS[act] if act else (), files)
+        if "data" in data:
+            self.fail(f"{where}.data", "an online evaluation deploys on the runs' own data")
         if "act" in data:
             self.fail(f"{where}.act", "an online evaluation acts as the checkpoint's default")
         allowed = tuple(f.name for f in fields(OnlineEvaluation) if f.name != "suffix")

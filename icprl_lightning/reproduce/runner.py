@@ -112,6 +112,8 @@ def evaluate_command(table: Table, evaluation: Evaluation, checkpoints: dict[str
                *evaluation.flags, "--out", str(out_dir / f"{table.name}{evaluation.suffix}")]
     if table.contexts != ("own",):
         command += ["--contexts", *table.contexts]
+    for path in evaluation.data:
+        command += ["--data", path]
     for run in (r for r in table.runs if r.evaluated):
         command += ["--run", f"{run.name}={saved_config(checkpoints[run.name])}:{','.join(checkpoints[run.name])}"]
     for baseline in table.baselines:

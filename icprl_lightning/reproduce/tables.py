@@ -41,10 +41,12 @@ class Run:
 
 @dataclass(frozen=True)
 class Evaluation:
-    """One ``icprl evaluate`` of a table's runs: output suffix and its flags (``--greedy``, ``--sample``)."""
+    """One ``icprl evaluate`` of a table's runs: output suffix, its flags (``--greedy``, ``--sample``) and the data
+    files stacked on every run's config (``--data``: other held-out tasks, e.g.)."""
 
     suffix: str
     flags: tuple[str, ...]
+    data: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

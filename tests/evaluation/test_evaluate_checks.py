@@ -172,3 +172,19 @@ def test_evaluate_prints_its_tables_and_writes_beside_the_run_by_default(tmp_pat
     # a second evaluation in the same second does not overwrite the first
     main(["--seeds", "0", "--run", f"ICPO={config}:{checkpoint}"])
     assert (run_dir / "eval" / "20250101-000000-2.json").exists()
+
+
+def test_a_data_file_stacks_on_the_run_config_and_a_missing_one_is_one_line(tmp_path, capsys, no_data):
+    """``--data FILE`` changes the held-out tasks a run is deployed on, not the checks of its checkpoints."""
+    module = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100, **TINY)
+    checkpoint = _save(module, tmp_path / "m.ckpt")
+    wider = tmp_path / "wider.yaml"
+    wider.write_text("data:\n  init_args:\n    family:\n      init_args:\n        n_test_tasks: 12\n")
+    assert run_datamodule("ICPO", DARKROOM, [checkpoint], [str(wider)]).family.n_test_tasks == 12
+    assert run_datamodule("ICPO", DARKROOM, [checkpoint]).family.n_test_tasks != 12
+    wrong = tmp_path / "wrong.yaml"
+    wrong.write_text("data:\n  init_args:\n    family:\n      init_args:\n        n_tset: 12\n")
+    err = _one_line_error(capsys, ["--run", f"ICPO={DARKROOM}:{checkpoint}", "--data", str(wrong)])
+    assert f"{DARKROOM} + {wrong} does not give a DataModule" in err and "n_tset" in err, err
+    err = _one_line_error(capsys, ["--run", f"ICPO={DARKROOM}:{checkpoint}", "--data", str(tmp_path / "no.yaml")])
+    assert err.startswith(f"icprl evaluate: error: --data {tmp_path / 'no.yaml'}: no such file"), err

@@ -14,6 +14,8 @@ from metaworld.policies import SawyerReachV3Policy  # noqa: E402
 
 from icprl_lightning.families.metaworld_reach import ReachTaskFamily  # noqa: E402
 from icprl_lightning.families.metaworld_reach.env import (  # noqa: E402
+    GOAL_HIGH,
+    GOAL_LOW,
     GOAL_SLICE,
     MIN_PUCK_GOAL_XY,
     PUCK_HIGH,
@@ -61,6 +63,25 @@ def test_split_is_disjoint_fixed_and_in_the_goal_space(family: ReachTaskFamily) 
     assert np.all((test >= space.low) & (test <= space.high))
     with pytest.raises(ValueError, match="50 goals"):
         ReachTaskFamily(n_train=48, n_test=5)
+
+
+def test_fresh_held_out_goals_widen_the_test_split_only(family: ReachTaskFamily) -> None:
+    np.testing.assert_array_equal(SawyerReachEnvV3().goal_space.low, GOAL_LOW)
+    np.testing.assert_array_equal(SawyerReachEnvV3().goal_space.high, GOAL_HIGH)
+    wide = ReachTaskFamily(seed=0, fresh_test_goals=50)
+    np.testing.assert_array_equal(wide.train_goals, family.train_goals)  # training is untouched
+    test = wide.test_goals
+    assert test.shape == (50, 3) and wide.n_test == 50
+    assert np.all((test >= GOAL_LOW) & (test <= GOAL_HIGH))
+    # never a training goal nor one of the paper's 5, and fixed by the seed
+    everything = np.concatenate([family.train_goals, family.test_goals, test])
+    assert len(np.unique(everything, axis=0)) == 100
+    np.testing.assert_array_equal(ReachTaskFamily(seed=0, fresh_test_goals=50).test_goals, test)
+    assert not np.allclose(ReachTaskFamily(seed=1, fresh_test_goals=50).test_goals, test)
+    assert wide.config()["fresh_test_goals"] == 50 and "fresh_test_goals" not in family.config()
+    with ReachVectorEnv(test[:4], num_workers=0) as env:  # every fresh goal resets (the puck avoids it)
+        obs, _ = env.reset(seed=0)
+        assert obs.shape == (4, 39)
 
 
 def test_puck_sampling_avoids_the_reset_hang() -> None:

@@ -30,6 +30,7 @@ from icprl_lightning.reproduce import (
     stages,
     table_names,
 )
+from icprl_lightning.reproduce.runner import evaluate_command
 
 EXPERIMENTS = REPO / "configs" / "experiment"
 HISTORY = re.compile(r"\bissue \d|\b(January|February|March|April|May|June|July|August|September|October|November|"
@@ -167,6 +168,10 @@ GOOD_RUN = "  - {name: A, configs: [configs/icpo_darkroom.yaml]}\n"
      "evaluations[0].online.rules[0]", "must be one of action_uniform"),
     (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', online: {{rounds: 0}}}}]\n",
      "evaluations[0].online.rounds", "must be an integer ≥ 1"),
+    (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', data: [configs/eval/nope.yaml]}}]\n",
+     "evaluations[0].data[0]", "configs/eval/nope.yaml does not exist"),
+    (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', online: {{}}, data: [configs/eval/reach_fresh_goals.yaml]}}]\n",
+     "evaluations[0].data", "an online evaluation deploys on the runs' own data"),
     (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: ''}}, {{suffix: ''}}]\n", "evaluations",
      "two write the same outputs"),
     (f"title: t\nruns:\n{GOOD_RUN}contexts: [own, flipped]\n", "contexts[1]", "must be one of own, "),
@@ -218,3 +223,15 @@ def test_overrides_become_flags_in_the_order_written(tmp_path, monkeypatch):
                              "--trainer.limit_train_batches", "30")
     assert run.setting("model.init_args.eta") == "1e6" and run.setting("trainer.limit_train_batches") == "30"
     assert fit_command(run, 0, tmp_path)[2:4] == ["--config", "base.yaml"]
+
+
+def test_an_evaluation_s_data_files_are_stacked_by_icprl_evaluate(monkeypatch):
+    """metaworld_heldout deploys the same fits on the paper's goals and, with ``--data``, on fresh ones."""
+    monkeypatch.chdir(REPO)
+    table = load_table("metaworld_heldout")
+    paper, fresh = table.evaluations
+    assert paper.data == () and fresh.data == ("configs/eval/reach_fresh_goals.yaml",)
+    checkpoints = {run.name: [f"runs/{run.name}/checkpoints/last.ckpt"] for run in table.runs}
+    command = evaluate_command(table, fresh, checkpoints, Path("out"))
+    assert command[command.index("--data") + 1] == "configs/eval/reach_fresh_goals.yaml"
+    assert "--data" not in evaluate_command(table, paper, checkpoints, Path("out"))

@@ -66,6 +66,9 @@ ACTION_DIM = 4
 HORIZON = 150
 SUCCESS_RADIUS = 0.05
 GOAL_SLICE = slice(36, 39)
+# reach-v3's goal box (its goal_space, from which ML1 draws the goals).
+GOAL_LOW = np.array([-0.1, 0.8, 0.05])
+GOAL_HIGH = np.array([0.1, 0.9, 0.3])
 # reach-v3's object (puck) box; z is the table height.
 PUCK_LOW = np.array([-0.1, 0.6, 0.02])
 PUCK_HIGH = np.array([0.1, 0.7, 0.02])

@@ -2,6 +2,11 @@
 ``reach-v3`` goals fixed by ``seed`` — the first ``n_train`` train, the last ``n_test`` are held out —
 H = 150, 39-D observations with the goal zeroed, 4-D continuous actions.
 
+The paper holds out 5 goals. ``fresh_test_goals = N`` replaces them by N goals drawn afresh, uniformly from
+reach-v3's goal box (``GOAL_LOW``/``GOAL_HIGH``, the box ML1 samples its goals from), with a stream of their own
+(``SeedSequence([seed, FRESH_GOALS_STREAM])``): a wider held-out evaluation (``configs/eval/``) that changes no
+training goal, and no goal of it is a training goal (continuous draws; tested).
+
 Both kinds of rollouts are episodes of ``ReachVectorEnv`` (worker processes over both cores), at most
 ``max_parallel`` at once (≈0.7 MB per env); ``num_workers`` does not change any number.
 ``independent_state_rollouts`` places every hand at a fresh uniform point of the hand box before each
@@ -22,6 +27,8 @@ from icprl_lightning.families.metaworld_reach.env import (
     ACTION_DIM,
     HAND_HIGH,
     HAND_LOW,
+    GOAL_HIGH,
+    GOAL_LOW,
     HORIZON,
     OBS_DIM,
     ReachVectorEnv,
@@ -33,8 +40,18 @@ from icprl_lightning.metrics import mean_sem, per_task_mean
 from icprl_lightning.validation import HyperparameterError, check_int
 
 
+FRESH_GOALS_STREAM = 50  # the seed stream of the fresh held-out goals, apart from ML1's
+
+
+def fresh_goals(seed: int, n: int) -> np.ndarray:
+    """``n`` held-out goals [n, 3] uniform in reach-v3's goal box, fixed by ``seed``, apart from ML1's draws."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, FRESH_GOALS_STREAM]))
+    return rng.uniform(GOAL_LOW, GOAL_HIGH, size=(n, 3))
+
+
 class ReachTaskFamily(TaskFamily):
-    """Reach goals fixed by ``seed``: ML1's 50 goals, the first ``n_train`` to train, the last ``n_test`` held out."""
+    """Reach goals fixed by ``seed``: ML1's 50 goals, the first ``n_train`` to train, the last ``n_test`` held out
+    (or, with ``fresh_test_goals = N``, N fresh goals of the same box held out instead)."""
 
     name = "metaworld_reach"
     metric_env = "metaworld"
@@ -44,8 +61,9 @@ class ReachTaskFamily(TaskFamily):
     max_parallel = 1024  # episodes simulated at once; bounds memory for paper-sized datasets
 
     def __init__(self, seed: int = 0, n_train: int = 45, n_test: int = 5, horizon: int = HORIZON,
-                 num_workers: int = 2) -> None:
+                 num_workers: int = 2, fresh_test_goals: int = 0) -> None:
         check_int("ReachTaskFamily", "n_train", n_train, 1, 49)
+        check_int("ReachTaskFamily", "fresh_test_goals", fresh_test_goals, 0, 10_000)
         check_int("ReachTaskFamily", "n_test", n_test, 1, 49)
         if n_train + n_test > 50:
             raise HyperparameterError(f"ReachTaskFamily: n_train + n_test must be <= 50 (ML1 offers 50 goals), "
@@ -57,8 +75,12 @@ class ReachTaskFamily(TaskFamily):
         self.n_test = n_test
         self.horizon = horizon
         self.num_workers = num_workers
+        self.fresh_test_goals = fresh_test_goals
         goals = ml1_goals(seed)  # continuous i.i.d. draws: distinct (tested)
         self._train, self._test = goals[:n_train].copy(), goals[len(goals) - n_test:].copy()
+        if fresh_test_goals:
+            self._test = fresh_goals(seed, fresh_test_goals)
+            self.n_test = fresh_test_goals
 
     @property
     def action_spec(self) -> ActionSpec:
@@ -133,8 +155,11 @@ class ReachTaskFamily(TaskFamily):
                 "test_reference_per_task": {"uniform_return": uniform.tolist(), "expert_return": expert.tolist()}}
 
     def config(self) -> dict[str, Any]:
-        return {"family": self.name, "env": "reach-v3", "expert": "tcp", "horizon": self.horizon,
-                "n_train_tasks": self.n_train, "n_test_tasks": self.n_test, "seed": self.seed}
+        out = {"family": self.name, "env": "reach-v3", "expert": "tcp", "horizon": self.horizon,
+               "n_train_tasks": self.n_train, "n_test_tasks": self.n_test, "seed": self.seed}
+        if self.fresh_test_goals:  # only then: the paper's split keeps its config (and its datasets) unchanged
+            out["fresh_test_goals"] = self.fresh_test_goals
+        return out
 
 
 class IndependentHandStates(EnvRollouts):

@@ -93,8 +93,9 @@ class ReachSACTaskFamily(ReachTaskFamily):
     name = "metaworld_reach_sac"
 
     def __init__(self, oracle_dir: str | Path = DEFAULT_ORACLE, seed: int = 0, n_train: int = 45, n_test: int = 5,
-                 horizon: int = HORIZON, num_workers: int = 2) -> None:
-        super().__init__(seed=seed, n_train=n_train, n_test=n_test, horizon=horizon, num_workers=num_workers)
+                 horizon: int = HORIZON, num_workers: int = 2, fresh_test_goals: int = 0) -> None:
+        super().__init__(seed=seed, n_train=n_train, n_test=n_test, horizon=horizon, num_workers=num_workers,
+                         fresh_test_goals=fresh_test_goals)
         self.oracle_dir = Path(oracle_dir)
         self.weights = ExportedSAC(self.oracle_dir)  # verifies the checksums now, not mid-generation
 
