@@ -25,10 +25,10 @@ from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.families.base import EnvRollouts, TaskFamily
 from icprl_lightning.families.metaworld_reach.env import (
     ACTION_DIM,
-    HAND_HIGH,
-    HAND_LOW,
     GOAL_HIGH,
     GOAL_LOW,
+    HAND_HIGH,
+    HAND_LOW,
     HORIZON,
     OBS_DIM,
     ReachVectorEnv,
@@ -38,7 +38,6 @@ from icprl_lightning.families.metaworld_reach.env import (
 from icprl_lightning.families.metaworld_reach.oracle import ReachOracle, calibrate_mixing, rollout_returns
 from icprl_lightning.metrics import mean_sem, per_task_mean
 from icprl_lightning.validation import HyperparameterError, check_int
-
 
 FRESH_GOALS_STREAM = 50  # the seed stream of the fresh held-out goals, apart from ML1's
 
