@@ -171,7 +171,7 @@ GOOD_RUN = "  - {name: A, configs: [configs/icpo_darkroom.yaml]}\n"
     (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', data: [configs/eval/nope.yaml]}}]\n",
      "evaluations[0].data[0]", "configs/eval/nope.yaml does not exist"),
     (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', online: {{}}, "
-     "data: [configs/eval/reach_fresh_goals.yaml]}}]\n",
+     f"data: [configs/eval/reach_fresh_goals.yaml]}}]\n",
      "evaluations[0].data", "an online evaluation deploys on the runs' own data"),
     (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: ''}}, {{suffix: ''}}]\n", "evaluations",
      "two write the same outputs"),
