@@ -9,7 +9,10 @@ every episode of one env reset from one seed at the first episode, so the starts
 
 * ``ad_learning_curve(agent, family, tasks, episodes, seed)`` — returns [n_tasks, episodes] of the agent;
 * ``source_learning_curve(learner, family, tasks, seed)`` — the same for the source learner run from scratch on
-  those goals (what AD distilled: the curve AD's is compared with).
+  those goals (what AD distilled: the curve AD's is compared with);
+* ``optimal_curve(family, tasks, episodes, seed)`` — [n_tasks, episodes], the optimal return of the very episodes
+  ``ad_learning_curve`` plays with that ``seed``: DarkRoom's closed-form V* of each episode's start (as its
+  ``references``), the starts drawn by the same resets of the same env.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import torch
 from icprl_lightning.families.base import TaskFamily
 from icprl_lightning.families.darkroom.family import DarkRoomFamily
 from icprl_lightning.families.darkroom.learning_histories import QLearningHistories
+from icprl_lightning.families.darkroom.oracle import optimal_value
 from icprl_lightning.methods.ad import HistoryAgent
 from icprl_lightning.validation import check_int
 
@@ -57,3 +61,22 @@ def source_learning_curve(learner: QLearningHistories, family: DarkRoomFamily, t
                           seed: int = 0) -> np.ndarray:
     """Return per episode [n_tasks, learner.episodes] of the source learner run from scratch on ``tasks``."""
     return learner.run(family, np.asarray(tasks), np.random.default_rng(seed))["episode_returns"].astype(np.float64)
+
+
+def optimal_curve(family: DarkRoomFamily, tasks: np.ndarray, episodes: int, seed: int = 0) -> np.ndarray:
+    """The optimal return [n_tasks, episodes] of the episodes ``ad_learning_curve(..., episodes, seed)`` plays.
+
+    DarkRoom's env draws only at ``reset`` (its steps are deterministic), so resetting a fresh env the same way
+    gives the same start cells, whatever the agent did; V*_H of each start is exact (``oracle.optimal_value``).
+    """
+    check_int("optimal_curve", "episodes", episodes, 1)
+    tasks = np.asarray(tasks)
+    env = family.make_env(tasks)
+    try:
+        optimal = np.zeros((len(tasks), episodes))
+        for episode in range(episodes):
+            env.reset(seed=seed if episode == 0 else None)
+            optimal[:, episode] = optimal_value(env.states, env.goals, family.horizon, family.terminate_on_goal)
+    finally:
+        env.close()
+    return optimal

@@ -7,6 +7,7 @@
     icprl evaluate --title "Linear dueling bandits" --seeds 0 \
         --run ICPO=configs/icpo_bandit.yaml:runs/icprl/<id>/checkpoints/last.ckpt --out results/bandit
     icprl evaluate online --config CONFIG --ckpt CHECKPOINT ...   (asked online: icprl evaluate online --help)
+    icprl evaluate ad --run NAME=CONFIG:CKPT ... --episodes 20 --out PATH   (AD's learning curve: --help there)
 
 Each ``--run`` is NAME=CONFIG:CHECKPOINT[,CHECKPOINT...]: several checkpoints are *training seeds* of one
 method on the same data, and each row is then the mean ± sem over training seeds of each seed's
@@ -289,6 +290,10 @@ def main(argv: list[str] | None = None) -> dict:
         from icprl_lightning.evaluation.online_command import main as online_main
 
         return online_main(argv[1:])
+    if argv[:1] == ["ad"]:  # Algorithm Distillation across episodes: its own options (evaluation/ad_command.py)
+        from icprl_lightning.evaluation.ad_command import main as ad_main
+
+        return ad_main(argv[1:])
     args = parse_args(argv)
     greedy = False if args.sample else True if args.greedy else None  # None: each method's own default
     datamodules = {}

@@ -28,7 +28,8 @@ passed as YAML writes it (``true``, ``[0, 1]``). ``groups`` holds named override
 through YAML anchors (``&name`` there, ``*name`` in a run); it is read for nothing else.
 
 An evaluation is ``icprl evaluate`` of every evaluated run (``act: greedy`` or ``sample``; none: the checkpoint's
-default), or online (``online: {rounds | episodes, rules, labels, ...}``: ``OnlineEvaluation``). A table whose
+default), or online (``online: {rounds | episodes, rules, labels, ...}``: ``OnlineEvaluation``), or AD's learning
+curve (``ad: {episodes: 20, against: {NAME: JSON}}``: ``ADEvaluation``, ``icprl evaluate ad``). A table whose
 ``runs_from`` names another deploys that table's runs, listed by name in ``runs``: their fits and records are
 the other table's, so each is trained once for both.
 """
@@ -43,7 +44,15 @@ from typing import Any, NoReturn
 
 import yaml
 
-from icprl_lightning.reproduce.tables import Evaluation, OnlineEvaluation, Run, Table, needed_runs, stages
+from icprl_lightning.reproduce.tables import (
+    ADEvaluation,
+    Evaluation,
+    OnlineEvaluation,
+    Run,
+    Table,
+    needed_runs,
+    stages,
+)
 
 EXPERIMENTS = Path("configs/experiment")  # relative to the working directory, as every config path of a table
 ACTS = {"greedy": ("--greedy",), "sample": ("--sample",)}
@@ -184,6 +193,9 @@ class _Reader:
         for key in ("budget", "figure"):
             if key in data:
                 values[key] = self.text(key, data[key])
+        if values.get("baselines") and any(isinstance(e, ADEvaluation) for e in values.get("evaluations", ())):
+            self.fail("baselines", "an ad evaluation takes none: its references are the source learner and the "
+                                   "optimum (draw an online result beside it with ad.against)")
         if values.get("figure"):
             from icprl_lightning.reproduce.figures import FIGURES
 
@@ -308,9 +320,11 @@ class _Reader:
 
     # ---- evaluations ----------------------------------------------------------------------------------------------
 
-    def evaluation(self, where: str, data: Any) -> Evaluation | OnlineEvaluation:
-        data = self.keys(where, data, ("suffix", "act", "data", "online"), ("suffix",))
+    def evaluation(self, where: str, data: Any) -> Evaluation | OnlineEvaluation | ADEvaluation:
+        data = self.keys(where, data, ("suffix", "act", "data", "online", "ad"), ("suffix",))
         suffix = self.text(f"{where}.suffix", data["suffix"])
+        if "ad" in data:
+            return self.ad_evaluation(where, suffix, data)
         if "online" not in data:
             act = self.choice(f"{where}.act", data["act"], tuple(ACTS)) if "act" in data else None
             files = tuple(self.file(f"{where}.data[{i}]", f) for i, f in enumerate(self.texts(f"{where}.data",
@@ -343,3 +357,21 @@ class _Reader:
         if "episodes" in values and "rounds" in values:
             self.fail(f"{where}.online", "episodes (an MDP family) or rounds (a bandit), not both")
         return OnlineEvaluation(**values)
+
+    def ad_evaluation(self, where: str, suffix: str, data: dict) -> ADEvaluation:
+        for key in ("act", "data", "online"):
+            if key in data:
+                self.fail(f"{where}.{key}", "an ad evaluation deploys AD with its default actions on its family's "
+                                            "held-out goals; it takes only suffix and ad")
+        allowed = tuple(f.name for f in fields(ADEvaluation) if f.name != "suffix")
+        ad = self.keys(f"{where}.ad", data["ad"] or {}, allowed)
+        values: dict[str, Any] = {"suffix": suffix}
+        if "episodes" in ad:
+            if type(ad["episodes"]) is not int or ad["episodes"] < 1:
+                self.fail(f"{where}.ad.episodes", f"must be an integer ≥ 1, got {ad['episodes']!r}")
+            values["episodes"] = ad["episodes"]
+        if "against" in ad:
+            against = self.keys(f"{where}.ad.against", ad["against"], tuple(ad["against"] or ()))
+            values["against"] = tuple((self.text(f"{where}.ad.against", name),
+                                       self.file(f"{where}.ad.against.{name}", path)) for name, path in against.items())
+        return ADEvaluation(**values)

@@ -14,7 +14,8 @@ configs and overrides) and the evaluations made of them. Every run is trained on
 ``icprl evaluate`` deploys each run's last checkpoints (all its training seeds) on the held-out contexts with
 the context diagnostics, greedy and sampled, and writes ``docs/results/<table>/<table>[_sampled]`` (``.json``, ``.md``,
 ``.png``, ``_diagnostics.png``); an online evaluation deploys them asking for comparisons as they act
-(``evaluate_online``). Training seeds share the dataset (the family's seed fixes it); they differ in
+(``evaluate_online``); an ad evaluation plays AD checkpoints for episodes in a row beside their source learner
+(``evaluate_ad``). Training seeds share the dataset (the family's seed fixes it); they differ in
 initialization, shuffling and the pairs drawn. A table whose ``runs_from`` names another trains (or finds)
 that table's fits in its folder, ``<work>/<other table>/``.
 
@@ -47,7 +48,16 @@ from icprl_lightning.io import write_json_atomic
 from icprl_lightning.reproduce.experiments import EXPERIMENTS, TableError, load_table, load_tables
 from icprl_lightning.reproduce.figures import FIGURES, curve_figure
 from icprl_lightning.reproduce.fit_logs import final_epoch_means, learning_curve
-from icprl_lightning.reproduce.tables import Evaluation, OnlineEvaluation, Run, Table, needed_runs, slug, stages
+from icprl_lightning.reproduce.tables import (
+    ADEvaluation,
+    Evaluation,
+    OnlineEvaluation,
+    Run,
+    Table,
+    needed_runs,
+    slug,
+    stages,
+)
 
 
 class RecordError(ValueError):
@@ -147,6 +157,24 @@ def evaluate_online(table: Table, evaluation: OnlineEvaluation, checkpoints: dic
     if not evaluation.figure:
         write_json_atomic(f"{out}.json", result)
     return {"out": f"{out}.json", "run": run.name}
+
+
+def evaluate_ad(table: Table, evaluation: ADEvaluation, checkpoints: dict[str, list[str]], out_dir: Path) -> dict:
+    """AD's learning curve (``icprl evaluate ad``) of every evaluated run of ``table`` (each run's training seeds
+    are its ``checkpoints``, its data the ``saved_config`` of the first), episode seeds ``table.eval_seeds``, for
+    ``evaluation.episodes`` episodes beside ``evaluation.against``; writes ``<out_dir>/<table><suffix>`` (``.json``,
+    ``.md``, ``.png``) and returns what it records of the evaluation."""
+    from icprl_lightning.evaluation.ad_command import ad_markdown
+    from icprl_lightning.evaluation.ad_command import evaluate_ad as deploy_ad
+
+    if table.baselines:
+        raise ValueError(f"{table.name}: an ad evaluation takes no baselines (its reference is the source learner), "
+                         f"got {list(table.baselines)}")
+    runs = {r.name: (str(saved_config(checkpoints[r.name])), checkpoints[r.name]) for r in table.runs if r.evaluated}
+    out = out_dir / f"{table.name}{evaluation.suffix}"
+    print(ad_markdown(deploy_ad(runs, evaluation.episodes, table.eval_seeds, out, table.title,
+                                dict(evaluation.against))), end="", flush=True)
+    return {"out": f"{out}.json", "runs": list(runs), "episodes": evaluation.episodes}
 
 
 def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: int, which: str = "last") -> dict:
@@ -249,6 +277,8 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
         began = time.time()
         if isinstance(evaluation, OnlineEvaluation):
             record = {"online": evaluate_online(table, evaluation, checkpoints, out_dir)}
+        elif isinstance(evaluation, ADEvaluation):
+            record = {"ad": evaluate_ad(table, evaluation, checkpoints, out_dir)}
         else:
             command = evaluate_command(table, evaluation, checkpoints, out_dir)
             evaluate_main(command[2:])
@@ -275,17 +305,23 @@ def redraw(table: Table, out_dir: Path) -> list[Path]:
     """Redraw ``table``'s figures from the outputs a full run wrote to ``out_dir`` (each ``icprl evaluate``'s JSON,
     the learning curves in ``<table>_reproduce.json``), without training or evaluating; returns the files read.
     An online evaluation draws its own figure when it runs."""
+    from icprl_lightning.evaluation.ad_command import ad_figure
     from icprl_lightning.evaluation.report import write_figures
 
     offline = [e for e in table.evaluations if isinstance(e, Evaluation)]
-    sources = [out_dir / f"{table.name}{e.suffix}.json" for e in offline] + [
+    ad = [out_dir / f"{table.name}{e.suffix}.json" for e in table.evaluations if isinstance(e, ADEvaluation)]
+    sources = [out_dir / f"{table.name}{e.suffix}.json" for e in offline] + ad + [
         out_dir / f"{table.name}_reproduce.json"]
     missing = [str(p) for p in sources if not p.exists()]
     if missing:
         raise FileNotFoundError(f"--redraw draws from a full run's outputs; missing {', '.join(missing)}: run "
                                 f"`icprl reproduce {table.name}` first")
     for source in sources[:-1]:
-        write_figures(json.loads(source.read_text()), source.with_suffix(""))
+        payload = json.loads(source.read_text())
+        if source in ad:
+            ad_figure(payload, source.with_suffix(".png"))
+        else:
+            write_figures(payload, source.with_suffix(""))
     if table.figure:
         FIGURES[table.figure](table, out_dir)
     curve_figure(table, json.loads(sources[-1].read_text())["learning_curves"], out_dir / f"{table.name}_curve.png")

@@ -1,6 +1,6 @@
 """A table of ``icprl reproduce``: runs (a method's configs and overrides, each trained once per training seed)
-and the evaluations made of them, ``icprl evaluate`` of every evaluated run or an online deployment;
-``experiments.py`` fills it from its experiment file, ``configs/experiment/<table>.yaml``."""
+and the evaluations made of them, ``icprl evaluate`` of every evaluated run, an online deployment or AD's learning
+curve; ``experiments.py`` fills it from its experiment file, ``configs/experiment/<table>.yaml``."""
 
 from __future__ import annotations
 
@@ -68,12 +68,25 @@ class OnlineEvaluation:
 
 
 @dataclass(frozen=True)
+class ADEvaluation:
+    """Algorithm Distillation's in-context learning curve, written to ``<table><suffix>``: every evaluated run (AD
+    checkpoints, learning-history configs) deployed for ``episodes`` consecutive episodes on the family's held-out
+    goals, its history kept across them, beside the source learner from scratch and the optimum
+    (``evaluation.ad_command``); ``against`` holds (name, JSON) pairs of ``icprl evaluate online`` results drawn
+    beside it."""
+
+    suffix: str
+    episodes: int = 20
+    against: tuple[tuple[str, str], ...] = ()
+
+
+@dataclass(frozen=True)
 class Table:
     name: str
     title: str
     runs: tuple[Run, ...]
-    evaluations: tuple[Evaluation | OnlineEvaluation, ...] = (Evaluation("", ("--greedy",)),
-                                                              Evaluation("_sampled", ("--sample",)))
+    evaluations: tuple[Evaluation | OnlineEvaluation | ADEvaluation, ...] = (
+        Evaluation("", ("--greedy",)), Evaluation("_sampled", ("--sample",)))
     contexts: tuple[str, ...] = ALL_CONTEXTS
     eval_seeds: tuple[int, ...] = (0, 1)
     baselines: tuple[str, ...] = ()  # NAME=JSON of ``icprl evaluate --baseline``

@@ -175,6 +175,19 @@ GOOD_RUN = "  - {name: A, configs: [configs/icpo_darkroom.yaml]}\n"
      "evaluations[0].data", "an online evaluation deploys on the runs' own data"),
     (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: ''}}, {{suffix: ''}}]\n", "evaluations",
      "two write the same outputs"),
+    (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', ad: {{episodes: 0}}}}]\n",
+     "evaluations[0].ad.episodes", "must be an integer ≥ 1, got 0"),
+    (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', ad: {{episods: 5}}}}]\n",
+     "evaluations[0].ad.episods", "unknown key; did you mean 'episodes'?"),
+    (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', act: greedy, ad: {{}}}}]\n",
+     "evaluations[0].act", "an ad evaluation deploys AD with its default actions"),
+    (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', ad: {{against: {{ICPO: results/nope.json}}}}}}]\n",
+     "evaluations[0].ad.against.ICPO", "results/nope.json does not exist"),
+    (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', ad: {{against: [results/nope.json]}}}}]\n",
+     "evaluations[0].ad.against", "must be a mapping"),
+    (f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', ad: {{}}}}]\nbaselines: "
+     "{DQN: docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json}\n", "baselines",
+     "an ad evaluation takes none"),
     (f"title: t\nruns:\n{GOOD_RUN}contexts: [own, flipped]\n", "contexts[1]", "must be one of own, "),
     (f"title: t\nruns:\n{GOOD_RUN}figure: violin\n", "figure", "must be one of lambda_beta, teacher_noise"),
     ("title: t\nruns_from: nowhere\nruns: [A]\n", "runs_from", "no table 'nowhere'"),
@@ -236,3 +249,18 @@ def test_an_evaluation_s_data_files_are_stacked_by_icprl_evaluate(monkeypatch):
     command = evaluate_command(table, fresh, checkpoints, Path("out"))
     assert command[command.index("--data") + 1] == "configs/eval/reach_fresh_goals.yaml"
     assert "--data" not in evaluate_command(table, paper, checkpoints, Path("out"))
+
+
+def test_an_ad_evaluation_reads_its_episodes_and_the_curves_drawn_beside_it(tmp_path, monkeypatch):
+    """ad_darkroom deploys AD's training seeds for 20 episodes beside the paper-recipe ICPO's online curve; an empty
+    ``ad`` takes the defaults."""
+    from icprl_lightning.reproduce.tables import ADEvaluation
+
+    monkeypatch.chdir(REPO)
+    table = load_table("ad_darkroom")
+    online = "docs/results/online_darkroom_paper/online_darkroom_paper.json"
+    assert table.evaluations == (ADEvaluation("", 20, (("ICPO online (paper recipe)", online),)),)
+    assert table.eval_seeds == (0, 1) and [run.configs for run in table.runs] == [("configs/ad_darkroom.yaml",)]
+    path = tmp_path / "mine.yaml"
+    path.write_text(f"title: t\nruns:\n{GOOD_RUN}evaluations: [{{suffix: '', ad: null}}]\n")
+    assert load_table(path).evaluations == (ADEvaluation(""),)
