@@ -30,15 +30,17 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import lightning as L
 import numpy as np
 import torch
+from torch import Tensor
 from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
 
-from icprl_lightning.contexts import ActionSpec, RewardTrajectoryContext
+from icprl_lightning.contexts import ActionSpec, Context, RewardTrajectoryContext
 from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.store import (
     StoredDataset,
@@ -58,17 +60,26 @@ FIELDS = ("states", "actions", "rewards")  # what a window serves: (s_h, a_h, r_
 SPLITS = ("train", "val")
 
 
+def reward_trajectory(window: dict[str, Tensor]) -> Context:
+    """A window of (s, a, r) steps as the ``RewardTrajectoryContext`` AD on DarkRoom reads."""
+    return RewardTrajectoryContext(*(window[k] for k in FIELDS))
+
+
 class HistoryWindows(Dataset):
     """Windows of ``length`` steps of the histories in ``arrays``, a whole batch per list of indices.
 
     ``offsets`` None: each index draws a history and an offset at random (training); else ``offsets`` [M, 2]
-    holds (row, offset) of window i (validation). Rows are task-major, ``per_goal`` per training goal.
+    holds (row, offset) of window i (validation). Rows are task-major, ``per_goal`` per training task.
+    ``fields``: the arrays a window takes, each [rows, steps, ...]; ``build`` makes the typed context of a window
+    from them (tensors [B, length, ...]); the defaults are the (s, a, r) steps of DarkRoom's histories.
     """
 
     def __init__(self, arrays: dict[str, np.ndarray], length: int, per_goal: int, size: int,
-                 offsets: np.ndarray | None = None) -> None:
+                 offsets: np.ndarray | None = None, fields: tuple[str, ...] = FIELDS,
+                 build: Callable[[dict[str, Tensor]], Context] = reward_trajectory) -> None:
         self.arrays, self.length, self.per_goal, self.size, self.offsets = arrays, length, per_goal, size, offsets
-        self.rows, self.steps = arrays["actions"].shape[:2]
+        self.fields, self.build = fields, build
+        self.rows, self.steps = arrays[fields[0]].shape[:2]
 
     def __len__(self) -> int:
         return self.size if self.offsets is None else len(self.offsets)
@@ -79,10 +90,9 @@ class HistoryWindows(Dataset):
             starts = torch.randint(0, self.steps - self.length + 1, (len(index),)).numpy()
         else:
             rows, starts = self.offsets[np.asarray(index)].T
-        window = {k: np.stack([self.arrays[k][r, s:s + self.length] for r, s in zip(rows, starts, strict=True)])
-                  for k in FIELDS}
-        context = RewardTrajectoryContext(*(to_tensor(window[k]) for k in FIELDS))
-        return ContextSamples(context, task=torch.from_numpy(rows // self.per_goal).long())
+        window = {k: to_tensor(np.stack([self.arrays[k][r, s:s + self.length]
+                                         for r, s in zip(rows, starts, strict=True)])) for k in self.fields}
+        return ContextSamples(self.build(window), task=torch.from_numpy(rows // self.per_goal).long())
 
 
 class LearningHistoryDataModule(L.LightningDataModule):

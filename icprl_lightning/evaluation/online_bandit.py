@@ -26,6 +26,13 @@ Three regrets per round:
   from which the mean recommendation regret stays at or below ``target`` until the last round (``None``:
   never).
 
+Algorithm Distillation on DTS's duels (``ad_checkpoints``; ``methods/ad.py`` with ``context_kind:
+step_preference``, docs/ad_bandit.md) is another row, ``ad``: its ``DuelHistoryAgent`` samples each duel from the
+model (AD's own pair; no pair rule), the same BT oracle answers, the answered duel enters its KV cache, and like
+DTS its recommendation after r answers is the first arm of duel r + 1 (so it plays ``rounds + 1`` duels and needs
+``max_context >= rounds + 1``). Its draws are ICPO's streams (the torch generator seeded by the episode seed, the
+labels from ``seed_streams``' first generator).
+
 ``labels="flipped"`` / ``"random"`` is the online label diagnostic: the oracle's answers are inverted, or
 replaced by fair coins, before the agent sees them (the baselines keep the true ones). If ICPO's regret does
 not suffer, its online gains do not come from the labels.
@@ -47,10 +54,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from icprl_lightning.deploy import load_agent
 from icprl_lightning.evaluation.duels import baseline_seeds, linear_learner, seed_streams
 from icprl_lightning.families.dueling_bandit import LinearDuelingBanditFamily
 from icprl_lightning.families.dueling_bandit.dts import run_dts
 from icprl_lightning.families.dueling_bandit.linear_baselines import run_online
+from icprl_lightning.methods.ad import DuelHistoryAgent
 from icprl_lightning.metrics import mean_sem, mean_sem_or_none, strong_regret, weak_regret
 from icprl_lightning.online import PAIR_RULES, OnlineAgent
 
@@ -61,10 +70,10 @@ ONLINE_BASELINES = ("maxinp", "bt_thompson")
 REGRET_KEYS = ("cumulative_weak_regret", "final_weak_regret", "cumulative_strong_regret", "final_strong_regret")
 
 
-def icpo_online(agent: OnlineAgent, family: LinearDuelingBanditFamily, theta: np.ndarray, rounds: int,
-                rng: np.random.Generator, labels: str = "own") -> dict[str, torch.Tensor]:
-    """``rounds`` duels per problem, each proposed after the previous ones were answered, and the greedy arm
-    after each answer: ``first``, ``second``, ``recommended`` each ``[P, rounds]``."""
+def oracle_labeler(family: LinearDuelingBanditFamily, theta: np.ndarray, rng: np.random.Generator,
+                   labels: str = "own"):
+    """``label(states, first, second) -> y [P]``: the family's BT answers for ``theta``'s problems, or (``labels``)
+    their inverse or fair coins."""
     if labels not in LABELS:
         raise ValueError(f"labels must be one of {', '.join(LABELS)}, got {labels!r}")
     n = len(theta)
@@ -77,6 +86,15 @@ def icpo_online(agent: OnlineAgent, family: LinearDuelingBanditFamily, theta: np
             y = rng.integers(0, 2, size=n).astype(y.dtype)
         return torch.from_numpy(y)
 
+    return label
+
+
+def icpo_online(agent: OnlineAgent, family: LinearDuelingBanditFamily, theta: np.ndarray, rounds: int,
+                rng: np.random.Generator, labels: str = "own") -> dict[str, torch.Tensor]:
+    """``rounds`` duels per problem, each proposed after the previous ones were answered, and the greedy arm
+    after each answer: ``first``, ``second``, ``recommended`` each ``[P, rounds]``."""
+    label = oracle_labeler(family, theta, rng, labels)
+    n = len(theta)
     agent.reset(n)
     obs = torch.zeros(n, 0)  # a bandit has no state
     first, second, recommended = [], [], []
@@ -86,6 +104,26 @@ def icpo_online(agent: OnlineAgent, family: LinearDuelingBanditFamily, theta: np
         second.append(b.cpu())
         recommended.append(agent.act(obs).cpu())
     return {k: torch.stack(v, 1) for k, v in (("first", first), ("second", second), ("recommended", recommended))}
+
+
+def ad_online(agent: DuelHistoryAgent, family: LinearDuelingBanditFamily, theta: np.ndarray, rounds: int,
+              rng: np.random.Generator, labels: str = "own") -> dict[str, torch.Tensor]:
+    """AD's ``rounds + 1`` duels per problem from an empty context, each answered and observed before the next
+    (the last one only proposed): ``first``, ``second`` ``[P, rounds]`` and, as for DTS, ``recommended`` = the
+    first arm of the next duel."""
+    label = oracle_labeler(family, theta, rng, labels)
+    n = len(theta)
+    agent.reset(n)
+    obs = torch.zeros(n, 0)  # a bandit has no state
+    first, second = [], []
+    for r in range(rounds + 1):
+        a, b = agent.propose(obs)
+        first.append(a.cpu())
+        second.append(b.cpu())
+        if r < rounds:
+            agent.observe(obs, a, b, label(obs, a, b))
+    first_t, second_t = torch.stack(first, 1), torch.stack(second, 1)
+    return {"first": first_t[:, :rounds], "second": second_t[:, :rounds], "recommended": first_t[:, 1:]}
 
 
 def dts_online(family: LinearDuelingBanditFamily, theta: np.ndarray, rounds: int, rng: np.random.Generator
@@ -167,10 +205,11 @@ def over_checkpoints(per_ckpt: list[dict[str, Any]]) -> dict[str, Any]:
 
 def evaluate_online_bandit(dm: Any, checkpoints: Sequence[str], rules: Sequence[str] = ("action_uniform",),
                            labels: str = "own", seeds: Sequence[int] = (0,), rounds: int = 200,
-                           n_problems: int | None = None) -> dict[str, Any]:
+                           n_problems: int | None = None, ad_checkpoints: Sequence[str] = ()) -> dict[str, Any]:
     """ICPO's online regrets per pair rule (per checkpoint and over checkpoints) and those of DTS and the
     ``ONLINE_BASELINES`` (keys ``dts``, ``maxinp``, ``bt_thompson``), on ``dm``'s held-out problems (the first
-    ``n_problems``, default all). ``dm`` is a prepared DataModule of a
+    ``n_problems``, default all); with ``ad_checkpoints`` (AD on DTS's duels, one per training seed) also the row
+    ``ad`` (``mean`` over them and ``per_checkpoint``). ``dm`` is a prepared DataModule of a
     ``LinearDuelingBanditFamily``. Returns the JSON-ready result (module docstring)."""
     if labels not in LABELS:
         raise ValueError(f"--labels must be one of {', '.join(LABELS)}, got {labels!r}")
@@ -193,6 +232,7 @@ def evaluate_online_bandit(dm: Any, checkpoints: Sequence[str], rules: Sequence[
         if not 1 <= rounds <= policy.transformer.max_context:
             raise ValueError(f"--rounds must be in [1, {policy.transformer.max_context}] (the model's max_context), "
                              f"got {rounds}")
+    ad_loaded = {c: load_ad_agent(c, family, rounds) for c in ad_checkpoints}
     rewards = torch.from_numpy(family.expected_rewards(theta))
 
     def seed_mean(play) -> dict[str, torch.Tensor]:
@@ -200,7 +240,7 @@ def evaluate_online_bandit(dm: Any, checkpoints: Sequence[str], rules: Sequence[
         return {k: torch.stack([c[k] for c in per_seed]).mean(0) for k in per_seed[0]}
 
     icpo = {}
-    for rule in rules:
+    for rule in rules if checkpoints else ():  # AD and the baselines alone: no ICPO rows
         per_ckpt = []
         for checkpoint in checkpoints:
             def play(seed: int, checkpoint: str = checkpoint, rule: str = rule) -> dict[str, torch.Tensor]:
@@ -209,13 +249,38 @@ def evaluate_online_bandit(dm: Any, checkpoints: Sequence[str], rules: Sequence[
                 return icpo_online(agent, family, theta, rounds, seed_streams(seed)[0], labels)
             per_ckpt.append(summarize(seed_mean(play)))
         icpo[rule] = {"mean": over_checkpoints(per_ckpt), "per_checkpoint": per_ckpt}
+    ad = {}
+    if ad_loaded:
+        per_ckpt = []
+        for probe in ad_loaded.values():
+            def play_ad(seed: int, probe: DuelHistoryAgent = probe) -> dict[str, torch.Tensor]:
+                agent = DuelHistoryAgent(probe.policy, greedy=probe.greedy, seed=seed)
+                return ad_online(agent, family, theta, rounds, seed_streams(seed)[0], labels)
+            per_ckpt.append(summarize(seed_mean(play_ad)))
+        ad = {"ad": {"checkpoints": [str(c) for c in ad_checkpoints], "mean": over_checkpoints(per_ckpt),
+                     "per_checkpoint": per_ckpt}}
     dts = summarize(seed_mean(lambda seed: dts_online(family, theta, rounds, seed_streams(seed)[1])))
     baselines = {name: summarize(seed_mean(
         lambda seed, name=name: linear_online(family, theta, rounds, name, baseline_seeds(seed)[name])))
         for name in ONLINE_BASELINES}
     return {"checkpoints": [str(c) for c in checkpoints], "dataset": str(dm.path), "problems": len(theta),
-            "rounds": rounds, "seeds": list(seeds), "labels": labels, "icpo": icpo, "dts": dts, **baselines,
+            "rounds": rounds, "seeds": list(seeds), "labels": labels, "icpo": icpo, **ad, "dts": dts, **baselines,
             "seconds": round(time.perf_counter() - started, 1)}
+
+
+def load_ad_agent(checkpoint: str, family: LinearDuelingBanditFamily, rounds: int) -> DuelHistoryAgent:
+    """An AD-on-duels checkpoint as its ``DuelHistoryAgent``, checked against the family and ``rounds``."""
+    agent = load_agent(checkpoint)
+    if not isinstance(agent, DuelHistoryAgent):
+        raise ValueError(f"--ad-ckpt {checkpoint} is not AD on duels (ADModule with context_kind step_preference); "
+                         f"it deploys as a {type(agent).__name__}")
+    if agent.obs_dim != 0 or agent.action_spec != family.action_spec:
+        raise ValueError(f"--ad-ckpt {checkpoint} is not a model of this bandit (state_dim {agent.obs_dim}, actions "
+                         f"{agent.action_spec}; the family has state_dim 0 and {family.action_spec})")
+    if not 1 <= rounds <= agent.max_context - 1:
+        raise ValueError(f"--rounds must be in [1, {agent.max_context - 1}] for --ad-ckpt {checkpoint}: AD proposes "
+                         f"rounds + 1 duels (the last one's first arm is its recommendation), got {rounds}")
+    return agent
 
 
 def online_bandit_figure(out: dict[str, Any], path: str | Path) -> None:
@@ -228,6 +293,9 @@ def online_bandit_figure(out: dict[str, Any], path: str | Path) -> None:
     for i, (rule, result) in enumerate(out["icpo"].items()):
         curve = result["mean"]["recommendation_curve"]
         ax.plot(range(1, len(curve) + 1), curve, color=f"C{i}", label=f"ICPO, {rule} pairs")
+    if "ad" in out:
+        curve = out["ad"]["mean"]["recommendation_curve"]
+        ax.plot(range(1, len(curve) + 1), curve, color="C9", label="AD on DTS's duels")
     references = [("dts", "DTS", "k"), ("maxinp", "MaxInP", "0.45"), ("bt_thompson", "BT Thompson sampling", "0.7")]
     for key, label, color in references:
         if key in out:  # results written before the feature-aware baselines have DTS only

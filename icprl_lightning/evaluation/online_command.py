@@ -5,7 +5,7 @@
         [--labels own|flipped|random] [--seeds 0 1] [--episodes 5] [--dqn dqn_from_scratch_darkroom.json] \
         [--out results/online_darkroom]
     icprl evaluate online --config configs/icpo_bandit.yaml --ckpt runs/icprl/<id>/checkpoints/last.ckpt \
-        --seeds 0 1 2 [--rounds 200] [--n-problems 50]
+        --seeds 0 1 2 [--rounds 200] [--n-problems 50] [--ad-ckpt <AD on duels>/checkpoints/last.ckpt ...]
 
 The config's data section names the dataset (generated if missing) whose held-out tasks the checkpoints
 play, from an empty context. An MDP family (any ``TaskFamily`` whose oracle has ``utility``) is played as
@@ -15,6 +15,8 @@ learning curve). Dueling bandits are played as ``evaluation.online_bandit`` says
 Double Thompson Sampling. ``--rule`` (repeat to compare) is the pair rule the agent asks by; ``--labels``
 flipped / random is the online label diagnostic (the answers inverted, or replaced by fair coins, before the
 agent sees them). Several ``--ckpt`` are training seeds: every row is then the mean ± sem over them.
+``--ad-ckpt`` (dueling bandits; repeat for training seeds) adds the row ``ad``: Algorithm Distillation on DTS's
+duels (``configs/ad_bandit.yaml``, docs/ad_bandit.md) playing the same problems; with it ``--ckpt`` may be left out.
 
 Prints the result as JSON; ``--out PATH`` also writes ``PATH.json`` and the figure ``PATH.png``.
 ``evaluate_online`` is the same run as a function.
@@ -36,7 +38,7 @@ from icprl_lightning.io import write_json_atomic
 from icprl_lightning.online import PAIR_RULES
 
 MDP_ONLY = {"episodes": "--episodes", "quality": "--quality", "targets": "--targets", "dqn": "--dqn"}
-BANDIT_ONLY = {"rounds": "--rounds", "n_problems": "--n-problems"}
+BANDIT_ONLY = {"rounds": "--rounds", "n_problems": "--n-problems", "ad_checkpoints": "--ad-ckpt"}
 
 
 def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | Path],
@@ -44,23 +46,24 @@ def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | P
                     seeds: Sequence[int] | None = None, episodes: int | None = None, quality: str | None = None,
                     targets: Sequence[float] | None = None, dqn: str | Path | None = None,
                     rounds: int | None = None, n_problems: int | None = None,
-                    out: str | Path | None = None) -> dict[str, Any]:
+                    out: str | Path | None = None, ad_checkpoints: Sequence[str | Path] | None = None
+                    ) -> dict[str, Any]:
     """``icprl evaluate online`` as a function: the same inputs as its options, the JSON it prints as a dict.
 
     ``configs`` stack as ``--config`` does; ``episodes``, ``quality``, ``targets`` and ``dqn`` apply to MDP
-    families, ``rounds`` and ``n_problems`` to dueling bandits (a value given for the other kind is a
-    ``ValueError`` naming its option). ``seeds`` default to 0 1 (MDP) or 0 (bandits). ``out`` writes
+    families, ``rounds``, ``n_problems`` and ``ad_checkpoints`` to dueling bandits (a value given for the other
+    kind is a ``ValueError`` naming its option). ``seeds`` default to 0 1 (MDP) or 0 (bandits). ``out`` writes
     ``<out>.json`` and ``<out>.png``.
     """
     if not configs:
         raise ValueError("--config: give the checkpoints' dataset config")
-    if not checkpoints:
-        raise ValueError("--ckpt: give at least one I-PRL checkpoint")
+    if not checkpoints and not ad_checkpoints:
+        raise ValueError("--ckpt: give at least one I-PRL checkpoint (or, on a dueling bandit, an --ad-ckpt)")
     checkpoints = [str(c) for c in checkpoints]
     dm = datamodule_from_config(*configs, progress=False)
     bandit = is_bandit_data(dm)
     given = {"episodes": episodes, "quality": quality, "targets": targets, "dqn": dqn, "rounds": rounds,
-             "n_problems": n_problems}
+             "n_problems": n_problems, "ad_checkpoints": ad_checkpoints or None}
     for key, option in (MDP_ONLY if bandit else BANDIT_ONLY).items():
         if given[key] is not None:
             raise ValueError(f"{option} applies to {'MDP families' if bandit else 'dueling bandits'}; the config's "
@@ -69,11 +72,13 @@ def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | P
     if bandit:
         result = online_bandit.evaluate_online_bandit(
             dm, checkpoints, rules, labels, seeds if seeds is not None else (0,),
-            rounds if rounds is not None else 200, n_problems)
+            rounds if rounds is not None else 200, n_problems, [str(c) for c in ad_checkpoints or ()])
     else:
         if not isinstance(getattr(dm, "family", None), TaskFamily):
             raise ValueError(f"the data of {', '.join(map(str, configs))} have no task family to answer queries at "
                              "the agent's states (recorded data have no simulator); use a task family's config")
+        if not checkpoints:
+            raise ValueError("--ckpt: give at least one I-PRL checkpoint")
         dm.setup("validate")
         result = online_mdp.evaluate_online_mdp(
             dm, checkpoints, rules, labels, seeds if seeds is not None else (0, 1),
@@ -90,8 +95,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", action="append", required=True,
                         help="the checkpoints' dataset config (repeat to stack overlays)")
-    parser.add_argument("--ckpt", action="append", required=True,
+    parser.add_argument("--ckpt", action="append", default=None,
                         help="an I-PRL checkpoint (repeat: training seeds of one method)")
+    parser.add_argument("--ad-ckpt", action="append", default=None,
+                        help="bandits: an AD-on-duels checkpoint (configs/ad_bandit.yaml; repeat: training seeds)")
     parser.add_argument("--rule", action="append", choices=sorted(PAIR_RULES), default=None,
                         help="the pair rule the agent asks by (repeat to compare; default action_uniform)")
     parser.add_argument("--labels", choices=online_mdp.LABELS, default="own",
@@ -114,8 +121,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args = parse_args(argv)
-    result = evaluate_online(args.config, args.ckpt, args.rule or ["action_uniform"], args.labels, args.seeds,
+    result = evaluate_online(args.config, args.ckpt or [], args.rule or ["action_uniform"], args.labels, args.seeds,
                              args.episodes, args.quality, args.targets, args.dqn, args.rounds, args.n_problems,
-                             args.out)
+                             args.out, args.ad_ckpt)
     print(json.dumps(result, indent=2), flush=True)
     return result

@@ -149,6 +149,15 @@ class _Reader:
                              "repository root)")
         return value
 
+    def model(self, where: str, value: Any) -> str:
+        """A checkpoint file or the name of a shipped model (``hub.shipped_models``)."""
+        from icprl_lightning.hub import shipped_models
+
+        if not (Path(self.text(where, value)).exists() or value in shipped_models()):
+            self.fail(where, f"{value} is neither a checkpoint (paths are relative to the working directory) nor a "
+                             f"shipped model ({', '.join(sorted(shipped_models()))})")
+        return value
+
     def choice(self, where: str, value: Any, allowed: tuple[str, ...]) -> str:
         if value not in allowed:
             self.fail(where, f"must be one of {', '.join(allowed)}, got {value!r}")
@@ -350,6 +359,10 @@ class _Reader:
                 values[key] = self.text(at, value)
             elif key == "figure":
                 values[key] = self.flag(at, value)
+            elif key == "data":
+                values[key] = self.file(at, value)
+            elif key == "beside":
+                values[key] = tuple(self.model(f"{at}[{i}]", c) for i, c in enumerate(self.texts(at, value)))
             elif type(value) is int and value >= 1:  # episodes, rounds, problems
                 values[key] = value
             else:

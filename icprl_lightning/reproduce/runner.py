@@ -44,6 +44,8 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
+import yaml
+
 from icprl_lightning.io import write_json_atomic
 from icprl_lightning.reproduce.experiments import EXPERIMENTS, TableError, load_table, load_tables
 from icprl_lightning.reproduce.figures import FIGURES, curve_figure
@@ -131,6 +133,14 @@ def evaluate_command(table: Table, evaluation: Evaluation, checkpoints: dict[str
     return command
 
 
+def is_ad_run(config: Path) -> bool:
+    """Whether a run's saved config trains Algorithm Distillation (an online deployment plays it as the ``ad`` row)."""
+    if not config.is_file():
+        return False
+    model = (yaml.safe_load(config.read_text()) or {}).get("model") or {}
+    return isinstance(model, dict) and model.get("class_path") == "icprl_lightning.methods.ad.ADModule"
+
+
 def evaluate_online(table: Table, evaluation: OnlineEvaluation, checkpoints: dict[str, list[str]], out_dir: Path
                     ) -> dict:
     """Deploy every evaluated run of ``table`` online as ``evaluation`` says (each run's training seeds are its
@@ -149,11 +159,14 @@ def evaluate_online(table: Table, evaluation: OnlineEvaluation, checkpoints: dic
     if unknown:
         raise ValueError(f"{table.name}: online evaluations take only the 'DQN from scratch' baseline, got {unknown}")
     out = out_dir / f"{table.name}{evaluation.suffix}"
-    result = deploy_online([saved_config(checkpoints[run.name])], checkpoints[run.name], rules=evaluation.rules,
+    config = saved_config(checkpoints[run.name])
+    ad = is_ad_run(config)
+    policies, ad_checkpoints = (list(evaluation.beside), checkpoints[run.name]) if ad else (checkpoints[run.name], None)
+    result = deploy_online([evaluation.data or config], policies, rules=evaluation.rules,
                            labels=evaluation.labels, seeds=table.eval_seeds, episodes=evaluation.episodes,
                            quality=evaluation.quality, rounds=evaluation.rounds, n_problems=evaluation.problems,
                            dqn=baselines.get("DQN from scratch") if evaluation.labels == "own" else None,
-                           out=out if evaluation.figure else None)
+                           out=out if evaluation.figure else None, ad_checkpoints=ad_checkpoints)
     if not evaluation.figure:
         write_json_atomic(f"{out}.json", result)
     return {"out": f"{out}.json", "run": run.name}

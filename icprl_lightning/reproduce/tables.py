@@ -55,7 +55,11 @@ class OnlineEvaluation:
     asks for a comparison as it acts (``episodes`` querying episodes of an MDP family, at ``quality``'s held-out
     tasks, or ``rounds`` duels of a bandit on its first ``problems`` held-out problems), proposing each pair by a
     rule of ``rules`` (``online.PAIR_RULES``); the dataset's annotator answers, its answers inverted or replaced
-    by coins with ``labels`` (the online label diagnostic). ``None``: the online evaluation's default."""
+    by coins with ``labels`` (the online label diagnostic). ``None``: the online evaluation's default.
+
+    An AD run on duels (its config's model ``ADModule``) plays as the ``ad`` row: ``data`` names the config whose
+    dueling-bandit data it is deployed on (its own data are learning histories) and ``beside`` the ICPO checkpoints
+    (or shipped model names) asked online beside it."""
 
     suffix: str
     rules: tuple[str, ...] = ("action_uniform",)
@@ -65,6 +69,8 @@ class OnlineEvaluation:
     quality: str | None = None
     problems: int | None = None
     figure: bool = False
+    data: str | None = None
+    beside: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import pytest
 from factories import REPO, tiny_darkroom_args
@@ -13,6 +14,7 @@ from icprl_lightning.reproduce import (
     OnlineEvaluation,
     Run,
     Table,
+    TableError,
     fit_command,
     fit_inputs,
     load_table,
@@ -302,6 +304,42 @@ def test_redraw_draws_every_figure_from_the_outputs_alone(tables, tmp_path):
     main([table.name, "--redraw", "--out", str(tmp_path)])
     drawn = {p.name for p in (tmp_path / table.name).glob("*.png")}
     assert drawn == {f"{table.name}{s}.png" for s in ("", "_diagnostics", "_sampled", "_sampled_diagnostics", "_curve")}
+
+
+def test_an_ad_run_plays_online_as_the_ad_row_on_the_data_and_beside_the_models_its_table_names(tmp_path, monkeypatch):
+    """An AD run's checkpoints go to the online deployment as ``ad_checkpoints``, on the ``data`` config (its own data
+    are learning histories), with the ``beside`` models as the ICPO checkpoints; a wrong ``beside`` is one error."""
+    import icprl_lightning.evaluation.online_command as online_command
+    import icprl_lightning.reproduce.runner as rep
+
+    def fake_fit(command, inputs, log, record, threads, which="last"):
+        run_dir = tmp_path / "runs" / command[command.index("--trainer.logger.init_args.name") + 1]
+        (run_dir / "checkpoints").mkdir(parents=True)
+        (run_dir / "config.yaml").write_text("model:\n  class_path: icprl_lightning.methods.ad.ADModule\n")
+        checkpoint = run_dir / "checkpoints" / "last.ckpt"
+        checkpoint.write_bytes(b"")
+        result = {"command": " ".join(command), "inputs_sha256": inputs, "checkpoint": str(checkpoint), "seconds": 0}
+        record.write_text(json.dumps(result))
+        return result
+
+    deployed = []
+    monkeypatch.setattr(rep, "_run_fit", fake_fit)
+    monkeypatch.setattr(online_command, "evaluate_online",
+                        lambda configs, checkpoints, **options: deployed.append((configs, checkpoints, options)) or {})
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "ad.yaml").write_text("model: {}\n")
+    (tmp_path / "duels.yaml").write_text("data: {}\n")
+    (tmp_path / "t.yaml").write_text(
+        "title: t\nruns:\n  - {name: AD, configs: [ad.yaml]}\nevaluations:\n"
+        "  - {suffix: '', online: {rounds: 20, data: duels.yaml, beside: [bandit-icpo]}}\n")
+    reproduce(load_table("t.yaml"), [0, 1], jobs=1, work=tmp_path / "work", out_dir=tmp_path / "out")
+    ((configs, checkpoints, options),) = deployed
+    assert configs == ["duels.yaml"] and checkpoints == ["bandit-icpo"]
+    assert [Path(c).parent.parent.name for c in options["ad_checkpoints"]] == ["AD-seed0", "AD-seed1"]
+    (tmp_path / "u.yaml").write_text("title: t\nruns:\n  - {name: AD, configs: [ad.yaml]}\nevaluations:\n"
+                                     "  - {suffix: '', online: {beside: [bandit-icpp]}}\n")
+    with pytest.raises(TableError, match=r"evaluations\[0\]\.online\.beside\[0\]: bandit-icpp is neither a checkpoint"):
+        load_table("u.yaml")
 
 
 def test_a_table_of_another_tables_runs_shares_its_fits_and_evaluates_online_through_one_call(tmp_path, monkeypatch,
