@@ -283,6 +283,44 @@ def load_ad_agent(checkpoint: str, family: LinearDuelingBanditFamily, rounds: in
     return agent
 
 
+def is_online_bandit_payload(payload: Any) -> bool:
+    """The JSON ``evaluate_online_bandit`` returns (``icprl evaluate online`` on a dueling bandit)."""
+    return isinstance(payload, dict) and {"rounds", "problems", "icpo", "dts"} <= set(payload)
+
+
+def online_bandit_markdown(out: dict[str, Any]) -> str:
+    """The table of an online bandit evaluation: per row, cumulative and final weak and strong regret and the
+    recommendation regret at the budgets, each mean ± sem as the JSON holds it (over training seeds for the
+    trained rows, over problems for the baselines)."""
+    rows = [(f"ICPO ({rule} pairs)", result["mean"]) for rule, result in out["icpo"].items()]
+    if "ad" in out:
+        rows.append(("AD on DTS's duels", out["ad"]["mean"]))
+    rows += [(name, out[key]) for key, name in (("dts", "DTS"), ("maxinp", "MaxInP"),
+                                                  ("bt_thompson", "BT Thompson sampling")) if key in out]
+    budgets = list(rows[0][1]["recommendation_regret"])
+
+    def cell(mean: float, sem: float | None) -> str:
+        return f"{mean:.3g}" if sem is None else f"{mean:.3g} ± {sem:.2g}"
+
+    lines = [f"Asked online: {out['rounds']} rounds on {out['problems']} held-out problems, labels {out['labels']}, "
+             f"episode seeds {out['seeds']}. Lower is better.", "",
+             "| row | cumulative weak regret | cumulative strong regret | final weak regret | final strong regret | "
+             + " | ".join(f"recommendation regret at {b}" for b in budgets) + " |",
+             "|---" * (5 + len(budgets)) + "|"]
+    for name, stats in rows:
+        cells = [cell(stats[k], stats.get(f"{k}_sem")) for k in REGRET_KEYS[0::2] + REGRET_KEYS[1::2]]
+        cells += [cell(stats["recommendation_regret"][b]["mean"], stats["recommendation_regret"][b]["sem"])
+                  for b in budgets]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    seeds = [f"ICPO {len(result['per_checkpoint'])}" for result in list(out["icpo"].values())[:1]]
+    seeds += [f"AD {len(out['ad']['per_checkpoint'])}"] if "ad" in out else []
+    lines += ["", f"Trained rows: mean ± sem over training seeds ({', '.join(seeds)}; one seed: no ±) of each "
+                  "seed's mean over problems and episode seeds; DTS, MaxInP and BT Thompson sampling: mean ± sem over "
+                  "problems. Weak regret min(R* − R(a), R* − R(a')), strong the mean of the two gaps; recommendation "
+                  "regret: the gap of the arm recommended after that many answers.", ""]
+    return "\n".join(lines)
+
+
 def online_bandit_figure(out: dict[str, Any], path: str | Path) -> None:
     """Recommendation regret vs answered queries, one line per pair rule (mean over training seeds), DTS and
     the feature-aware baselines dashed."""

@@ -182,16 +182,28 @@ def command_of(table: str) -> str:
     return "an investigation outside the experiment files: see the notebook (docs/notebook.md)"
 
 
-def evaluations_in(folder: Path) -> list[tuple[str, dict[str, Any]]]:
+def _payloads(folder: Path, kind) -> list[tuple[str, dict[str, Any]]]:
     out = []
     for path in sorted(folder.glob("*.json")):
         try:
             payload = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError):
             continue
-        if is_evaluation(payload):
+        if kind(payload):
             out.append((path.stem, payload))
     return out
+
+
+def evaluations_in(folder: Path) -> list[tuple[str, dict[str, Any]]]:
+    """The ``icprl evaluate`` (and ``icprl evaluate ad``) JSONs of ``folder``, by stem."""
+    return _payloads(folder, is_evaluation)
+
+
+def online_bandit_in(folder: Path) -> list[tuple[str, dict[str, Any]]]:
+    """The JSONs of ``icprl evaluate online`` on a dueling bandit in ``folder``, by stem."""
+    from icprl_lightning.evaluation.online_bandit import is_online_bandit_payload
+
+    return _payloads(folder, is_online_bandit_payload)
 
 
 def summary_page(folder: Path) -> str | None:
@@ -393,12 +405,15 @@ def pretrained_table() -> str:
 def rendered(root: Path = RESULTS) -> dict[Path, str]:
     """Every generated text page, path -> content (the figures are drawn by ``render``)."""
     from icprl_lightning.evaluation.ad_command import ad_markdown, is_ad_payload
+    from icprl_lightning.evaluation.online_bandit import online_bandit_markdown
     from icprl_lightning.evaluation.report import markdown_tables
 
     pages: dict[Path, str] = {}
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
         for name, payload in evaluations_in(folder):  # the tables `icprl evaluate` printed, from their JSON
             pages[folder / f"{name}.md"] = (ad_markdown if is_ad_payload(payload) else markdown_tables)(payload)
+        for name, payload in online_bandit_in(folder):  # the regrets of `icprl evaluate online` on a bandit
+            pages[folder / f"{name}.md"] = online_bandit_markdown(payload)
         page = summary_page(folder)
         if page is not None:
             pages[folder / "summary.md"] = page

@@ -89,3 +89,18 @@ def test_readme_and_package_docstrings_carry_no_history():
     texts = {"README.md": (REPO / "README.md").read_text()}
     texts.update({str(p.relative_to(REPO)): p.read_text() for p in (REPO / "icprl_lightning").rglob("*.py")})
     assert [name for name, text in texts.items() if dated.search(text)] == []
+
+
+def test_an_online_bandit_json_renders_its_regret_table():
+    from icprl_lightning.evaluation.online_bandit import online_bandit_markdown
+
+    payload = json.loads((REPO / "docs/results/online_bandit/online_bandit_active.json").read_text())
+    lines = online_bandit_markdown(payload).splitlines()
+    rows = {line.split(" | ")[0].removeprefix("| "): line for line in lines
+            if line.startswith("| ") and "---" not in line}
+    assert set(rows) == {"row", "DTS", "MaxInP", "BT Thompson sampling",
+                         *(f"ICPO ({rule} pairs)" for rule in payload["icpo"])}
+    dts = payload["dts"]
+    weak = f"{dts['cumulative_weak_regret']:.3g} ± {dts['cumulative_weak_regret_sem']:.2g}"
+    assert rows["DTS"].split(" | ")[1] == weak
+    assert (REPO / "docs/results/online_bandit/online_bandit_active.md").read_text() == "\n".join(lines) + "\n"
