@@ -302,7 +302,9 @@ def online_bandit_markdown(out: dict[str, Any]) -> str:
     def cell(mean: float, sem: float | None) -> str:
         return f"{mean:.3g}" if sem is None else f"{mean:.3g} ± {sem:.2g}"
 
-    lines = [f"Asked online: {out['rounds']} rounds on {out['problems']} held-out problems, labels {out['labels']}, "
+    labels = out["labels"] if out["labels"] == "own" else (
+        f"{out['labels']} for the trained rows (the baselines are answered truly)")
+    lines = [f"Asked online: {out['rounds']} rounds on {out['problems']} held-out problems, labels {labels}, "
              f"episode seeds {out['seeds']}. Lower is better.", "",
              "| row | cumulative weak regret | cumulative strong regret | final weak regret | final strong regret | "
              + " | ".join(f"recommendation regret at {b}" for b in budgets) + " |",
