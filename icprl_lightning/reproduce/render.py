@@ -49,7 +49,8 @@ REFERENCE_ROWS = {"behavior", "optimal", "expert", "dts"}
 DIAGNOSTIC_NAMES = {"random_labels": "random labels", "flipped_labels": "flipped labels",
                     "other_task": "another task's context", "shuffled_order": "shuffled order"}
 # the headline tables whose performance profile is drawn: table -> its JSON's stem
-PROFILES = {"darkroom_ipref": "darkroom_ipref", "metaworld_sac_x1": "metaworld_sac_x1", "bandit": "bandit"}
+PROFILES = {"darkroom_ipref": "darkroom_ipref", "metaworld_heldout": "metaworld_heldout_fresh_goals",
+            "bandit": "bandit"}
 
 
 @dataclass(frozen=True)
