@@ -5,7 +5,9 @@
     icprl validate --config configs/icpo_darkroom.yaml --ckpt_path runs/.../last.ckpt
     icprl generate --config configs/icpo_darkroom.yaml [--data.init_args.overwrite true]
     icprl evaluate --run NAME=CONFIG:CKPT [...]                        (evaluation/command.py)
+    icprl evaluate --run NAME=CONFIG:CKPT --data configs/eval/reach_fresh_goals.yaml   (other held-out tasks)
     icprl evaluate online --config CONFIG --ckpt CKPT [...]            (evaluation/online_command.py)
+    icprl evaluate ad --run NAME=CONFIG:CKPT --episodes 20 [...]       (evaluation/ad_command.py)
     icprl import arrays.npz --out data/mine --kind step_preference --n-actions 5   (data/importer.py)
     icprl import exports/ipref_hf --format hf --out data/mine       (also parquet, minari, trl, bpref)
     icprl export-data data/<dataset> --format hf|parquet|minari --out DIR          (data/interop/)
