@@ -309,3 +309,10 @@ def test_each_shipped_mdp_model_returns_what_its_card_says(name, tmp_path):
     deployed = episode_stats(suite, episodes)[metric.key]
     stored = interval(scores_of(row, metric.key), "mean")
     assert stored.low <= deployed <= stored.high, (deployed, stored)
+
+
+@pytest.mark.parametrize("name", shipped_models())
+def test_a_shipped_model_config_names_no_machine_path(name):
+    """A shipped model's config.json is read on other machines: no absolute path of the one that trained it."""
+    text = (resolve(name) / "config.json").read_text()
+    assert not re.search(r'"(/tmp|/home|/work|/Users)/', text), name

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -200,3 +201,14 @@ def test_reach_ipref_configs_are_the_sac_recipe_and_overlays_switch_recipes(expo
         assert type(datamodule_from_config(*config(name), root_dir=str(tmp_path)).family) is ReachTaskFamily, name
         dm = datamodule_from_config(*config(name, "sac_oracle"), str(local), root_dir=str(tmp_path))
         assert isinstance(dm.family, ReachSACTaskFamily) and dm.family.oracle_dir == exported, name
+
+
+def test_the_default_oracle_is_a_bare_name_so_saved_configs_carry_no_machine_path(tmp_path, monkeypatch):
+    from icprl_lightning.families.metaworld_reach.sac_family import DEFAULT_ORACLE_NAME, oracle_path
+
+    monkeypatch.chdir(tmp_path)
+    assert oracle_path(DEFAULT_ORACLE_NAME) == DEFAULT_ORACLE  # a packaged oracle, from any working directory
+    assert oracle_path(tmp_path / "mine") == tmp_path / "mine"  # any other path is taken as given
+    assert oracle_path("not_packaged") == Path("not_packaged")
+    (tmp_path / DEFAULT_ORACLE_NAME).mkdir()  # a folder of that name here wins over the package's
+    assert oracle_path(DEFAULT_ORACLE_NAME) == Path(DEFAULT_ORACLE_NAME)

@@ -40,7 +40,19 @@ from icprl_lightning.families.metaworld_reach.sac_weights import CHECKSUMS, FINA
 from icprl_lightning.io import sha256
 from icprl_lightning.metrics import mean_sem, per_task_mean
 
-DEFAULT_ORACLE = Path(__file__).parent / "sac_oracle_v1"
+PACKAGED_ORACLES = Path(__file__).parent
+DEFAULT_ORACLE_NAME = "sac_oracle_v1"
+DEFAULT_ORACLE = PACKAGED_ORACLES / DEFAULT_ORACLE_NAME
+
+
+def oracle_path(oracle_dir: str | Path) -> Path:
+    """``oracle_dir`` as given; a bare name (no folder part) that is not a folder of the working directory names an
+    oracle shipped in the package (``sac_oracle_v1``). The default is that bare name, so a saved run config, and a
+    model exported from it, carries no machine's absolute path."""
+    path = Path(oracle_dir)
+    if not path.exists() and path.parent == Path(".") and (PACKAGED_ORACLES / path.name).is_dir():
+        return PACKAGED_ORACLES / path.name
+    return path
 
 # (state, standard-normal noise [N, 4], uniform actions [N, 4]) -> actions [N, 4]
 PolicyFn = Callable[[ReachOracleState, np.ndarray, np.ndarray], np.ndarray]
@@ -92,11 +104,11 @@ class ReachSACTaskFamily(ReachTaskFamily):
 
     name = "metaworld_reach_sac"
 
-    def __init__(self, oracle_dir: str | Path = DEFAULT_ORACLE, seed: int = 0, n_train: int = 45, n_test: int = 5,
+    def __init__(self, oracle_dir: str | Path = DEFAULT_ORACLE_NAME, seed: int = 0, n_train: int = 45, n_test: int = 5,
                  horizon: int = HORIZON, num_workers: int = 2, fresh_test_goals: int = 0) -> None:
         super().__init__(seed=seed, n_train=n_train, n_test=n_test, horizon=horizon, num_workers=num_workers,
                          fresh_test_goals=fresh_test_goals)
-        self.oracle_dir = Path(oracle_dir)
+        self.oracle_dir = oracle_path(oracle_dir)
         self.weights = ExportedSAC(self.oracle_dir)  # verifies the checksums now, not mid-generation
 
     @cached_property
@@ -188,4 +200,4 @@ class ReachSACTaskFamily(ReachTaskFamily):
                 "sac_oracle": {"dir": self.oracle_dir.name, "sha256": sha256(self.oracle_dir / CHECKSUMS)}}
 
 
-__all__ = ["DEFAULT_ORACLE", "FINAL", "ReachSACOracle", "ReachSACTaskFamily"]
+__all__ = ["DEFAULT_ORACLE", "DEFAULT_ORACLE_NAME", "FINAL", "ReachSACOracle", "ReachSACTaskFamily"]
