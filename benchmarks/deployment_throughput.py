@@ -1,6 +1,7 @@
 """Deployment rate (env-steps/s) on batched DarkRoom tasks, with and without the KV cache, beside DPT's reference.
 
     python benchmarks/deployment_throughput.py [--tasks 100] [--seed 0] [--threads N] [--no-reference] [--compile]
+                                               [--repeats 3]
 
 A full episode (H = 100 steps) for each of ``--tasks`` tasks (the 20 held-out goals repeated), all in one
 vector env, through the public Agent API: the first act() after reset() encodes the 100-comparison
@@ -8,17 +9,26 @@ contexts; each act() runs the query token only (cache) or re-runs the whole cont
 cache, what DPT's evaluation does every step). The rate counts the whole loop (env steps included).
 Untrained weights: speed does not depend on them. With the ``bench`` extra installed, DPT's reference
 evaluation (``dpt_reference.py``: a full 101-token forward per step, the same number of tasks) runs in the
-same process, and each size prints its ratio to it. ``--compile`` adds the cached agent with its query step
-under ``torch.compile`` (``load_agent(..., compile=True)``): a first episode compiles (its seconds printed as
-``compile_episode_seconds``), the next is timed, as the reference is timed after a warm-up forward. Prints JSON.
+same process, and each size prints its ratio to it.
+
+Timing: every agent runs one untimed episode first (allocation, a compile), then ``--repeats`` timed episodes,
+each right after a timed block of the reference (20 of its steps): env-steps/s is the median episode, and
+``kv_cache_vs_reference`` the median ratio of these adjacent pairs, so a change of the machine's speed during a
+run (tens of percent over minutes here) moves both sides of a ratio alike. ``--compile`` adds the cached agent
+with its query step under ``torch.compile`` (``load_agent(..., compile=True)``): its untimed first episode compiles
+(its seconds printed as ``compile_episode_seconds``), as the reference is timed after a warm-up forward.
+Prints JSON.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shlex
+import statistics
 import sys
 import time
+from functools import partial
 
 import numpy as np
 import torch
@@ -51,9 +61,21 @@ def episode(agent, context: StepPreferenceContext, goals: np.ndarray, fam: DarkR
     return time.perf_counter() - start
 
 
-def run(model: ICPOModule, context: StepPreferenceContext, goals: np.ndarray, fam: DarkRoomFamily,
-        use_cache: bool) -> float:
-    return len(goals) * fam.horizon / episode(model.make_agent(use_cache=use_cache, seed=0), context, goals, fam)
+def timed(agent, context: StepPreferenceContext, goals: np.ndarray, fam: DarkRoomFamily, repeats: int,
+          reference=None) -> tuple[float, float | None, float, list[float]]:
+    """(median env-steps/s, median ratio to ``reference`` or None, the untimed first episode's seconds, the
+    reference's rates).
+
+    ``reference`` is a callable returning the reference's env-steps/s over one block; each timed episode runs
+    right after one of its blocks."""
+    first = episode(agent, context, goals, fam)
+    rates, reference_rates = [], []
+    for _ in range(repeats):
+        if reference is not None:
+            reference_rates.append(reference())
+        rates.append(len(goals) * fam.horizon / episode(agent, context, goals, fam))
+    ratio = statistics.median(r / q for r, q in zip(rates, reference_rates, strict=True)) if reference_rates else None
+    return statistics.median(rates), ratio, first, reference_rates
 
 
 def main() -> None:
@@ -63,6 +85,8 @@ def main() -> None:
     parser.add_argument("--no-reference", action="store_true", help="skip DPT's reference even if installed")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--compile", action="store_true", help="also time the cached agent under torch.compile")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="timed episodes per agent, each after a block of the reference; medians are printed")
     parser.add_argument("--threads", type=int, default=None,
                         help="torch intra-op threads (default: torch's own, = the cores); 1 avoids thread "
                              "oversubscription on a shared machine")
@@ -78,33 +102,38 @@ def main() -> None:
     context = StepPreferenceContext(torch.from_numpy(arrays["states"]), torch.from_numpy(arrays["actions"]).long(),
                                     torch.from_numpy(arrays["alt_actions"]).long(),
                                     torch.from_numpy(arrays["preferred"]).float())
-    reference = not args.no_reference and dpt_reference.available()
-    results, references = {}, {}
+    with_reference = not args.no_reference and dpt_reference.available()
+    results = {}
     for name in args.sizes:
         n_layer, n_embd, n_head, ref_size = SIZES[name]
         torch.manual_seed(0)
         model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100,
                            backbone=TransformerConfig(n_layer=n_layer, n_embd=n_embd, n_head=n_head)).eval()
-        cached = run(model, context, goals, fam, use_cache=True)
-        full = run(model, context, goals, fam, use_cache=False)
-        results[name] = {"kv_cache": round(cached), "no_cache": round(full), "speedup": round(cached / full, 1)}
+        reference = None
+        if with_reference and ref_size is not None:
+            layers, width, _ = dpt_reference.SIZES[ref_size]
+            reference = partial(dpt_reference.deploy_env_steps_per_second, layers, width, len(goals))
+        row: dict = {}
+        cached, ratio, _, reference_rates = timed(model.make_agent(use_cache=True, seed=0), context, goals, fam,
+                                                  args.repeats, reference)
+        full, _, _, _ = timed(model.make_agent(use_cache=False, seed=0), context, goals, fam, 1)
+        row.update(kv_cache=round(cached), no_cache=round(full), speedup=round(cached / full, 1))
         if args.compile:
-            agent = model.make_agent(use_cache=True, seed=0, compile=True)
-            results[name]["compile_episode_seconds"] = round(episode(agent, context, goals, fam), 1)
-            results[name]["kv_cache_compiled"] = round(len(goals) * fam.horizon / episode(agent, context, goals, fam))
-        if reference and ref_size is not None:
-            if ref_size not in references:
-                layers, width, _ = dpt_reference.SIZES[ref_size]
-                references[ref_size] = dpt_reference.deploy_env_steps_per_second(layers, width, len(goals))
-            results[name]["dpt_reference"] = round(references[ref_size])
-            results[name]["kv_cache_vs_reference"] = round(cached / references[ref_size], 1)
+            compiled, compiled_ratio, first, more = timed(model.make_agent(use_cache=True, seed=0, compile=True),
+                                                          context, goals, fam, args.repeats, reference)
+            reference_rates += more
+            row.update(compile_episode_seconds=round(first, 1), kv_cache_compiled=round(compiled))
+        if ratio is not None:
+            row.update(dpt_reference=round(statistics.median(reference_rates)), kv_cache_vs_reference=round(ratio, 1))
             if args.compile:
-                results[name]["kv_cache_compiled_vs_reference"] = round(
-                    results[name]["kv_cache_compiled"] / references[ref_size], 1)
+                row["kv_cache_compiled_vs_reference"] = round(compiled_ratio, 1)
+        results[name] = row
         print(f"{name}: {results[name]}", file=sys.stderr, flush=True)
-    print(json.dumps({"benchmark": "deployment_env_steps_per_second", "tasks": len(goals),
+    print(json.dumps({"benchmark": "deployment_env_steps_per_second",
+                      "command": shlex.join(["python", *sys.argv]), "tasks": len(goals),
                       "horizon": fam.horizon, "torch_threads": torch.get_num_threads(),
-                      "reference": "DPT DarkRoom evaluation (benchmarks/dpt_reference.py)" if reference else
+                      "repeats": args.repeats,
+                      "reference": "DPT DarkRoom evaluation (benchmarks/dpt_reference.py)" if with_reference else
                       "not run (pip install -e .[bench] for transformers)", "results": results}, indent=2))
 
 

@@ -20,7 +20,9 @@ thing of the model's execution, never its function:
 
 Beside them, ``floor``: the arithmetic any 1-head transformer of that size must do on 100 tokens, alone
 (each layer's four linear maps, its causal attention and residual adds, forward and backward; no embedding,
-normalization, activation, loss or optimizer; ``floor_bf16`` under bf16 autocast). DPT's reference does the same
+normalization, activation, loss or optimizer; ``floor_bf16`` under bf16 autocast), and ``floor_Nhead``, the
+same with the configs' N heads: attention scores and weights are T × T per head, so N heads do N times the
+attention's element-wise work whatever the layout. DPT's reference does the same
 arithmetic on 101 tokens, so ``floor``'s ratio to the reference bounds what any 100-token layout of this
 size can reach on this machine with these matmul and attention kernels: it is the reference's speed if
 everything else in its step were free.
@@ -40,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import statistics
 import sys
 import time
@@ -77,6 +80,9 @@ SIZES = {
                                                                   dict(heads=4, merged=True)]),
 }
 
+# the configs' heads at each size (configs/*_darkroom.yaml: 4; the paper's I-PRL model: 8), in the appended layout
+DEFAULT_HEADS = {"dpt_small_4L_32d_b64": 4, "paper_6L_256d_b32": 8, "default_3L_64d_b32": 4}
+
 
 def batch_for(b: int, t: int = H) -> ContextSamples:
     g = torch.Generator().manual_seed(0)
@@ -102,8 +108,9 @@ def block_rate(step: Callable[[], None], steps: int) -> float:
 class DenseFloor(torch.nn.Module):
     """Only the linear maps and causal attention of a 1-head pre-LN block stack (see the module docstring)."""
 
-    def __init__(self, n_layer: int, n_embd: int) -> None:
+    def __init__(self, n_layer: int, n_embd: int, n_head: int = 1) -> None:
         super().__init__()
+        self.n_head = n_head
         self.layers = torch.nn.ModuleList(
             torch.nn.ModuleList([torch.nn.Linear(n_embd, 3 * n_embd), torch.nn.Linear(n_embd, n_embd),
                                  torch.nn.Linear(n_embd, 4 * n_embd), torch.nn.Linear(4 * n_embd, n_embd)])
@@ -111,16 +118,17 @@ class DenseFloor(torch.nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         b, t, c = x.shape
+        nh = self.n_head
         for qkv, proj, fc, fc_out in self.layers:
-            q, k, v = (z.view(b, t, 1, c).transpose(1, 2) for z in qkv(x).split(c, dim=2))
+            q, k, v = (z.view(b, t, nh, c // nh).transpose(1, 2) for z in qkv(x).split(c, dim=2))
             x = x + proj(F.scaled_dot_product_attention(q, k, v, is_causal=True).transpose(1, 2).reshape(b, t, c))
             x = x + fc_out(fc(x))
         return x
 
 
-def floor_step(size: dict, bf16: bool) -> Callable[[], None]:
+def floor_step(size: dict, bf16: bool, n_head: int = 1) -> Callable[[], None]:
     torch.manual_seed(0)
-    model = DenseFloor(size["n_layer"], size["n_embd"])
+    model = DenseFloor(size["n_layer"], size["n_embd"], n_head)
     x = torch.randn(size["batch"], H, size["n_embd"])
 
     def step() -> None:
@@ -219,6 +227,8 @@ def main() -> None:
                      if with_reference and name in dpt_reference.SIZES else None)
         steps_of = [("floor", partial(floor_step, size, False), H), ("floor_bf16", partial(floor_step, size, True), H)]
         steps_of = steps_of[: 2 if size["n_embd"] > 64 else 1]  # bf16 autocast pays only at the wide size
+        heads = DEFAULT_HEADS[name]
+        steps_of.append((f"floor_{heads}head", partial(floor_step, size, False, heads), H))
         steps_of += [(name_of(v), partial(icpo_step, size, v), v.get("k", H)) for v in variants]
         reference_rates: list[float] = []
         for key, make_step, predictions in steps_of:
@@ -229,9 +239,13 @@ def main() -> None:
             samples = statistics.median(reference_rates) * size["batch"]
             row = {"dpt_reference": {"samples_per_s": round(samples, 1), "predictions_per_sample": H,
                                      "predictions_per_s": round(samples * H)}} | row
+        row[name_of(dict(heads=heads))]["default"] = True
         results[name] = row
-    print(json.dumps({"benchmark": "training_samples_per_second", "method": "ICPOModule", "context_length": H,
+    print(json.dumps({"benchmark": "training_samples_per_second",
+                      "command": shlex.join(["python", *sys.argv]), "method": "ICPOModule", "context_length": H,
                       "torch_threads": torch.get_num_threads(),
+                      "default": "the configs' layout and head count at each size (appended, all 100 queries, "
+                                 "fp32): the row marked \"default\": true",
                       "steps_per_block": args.steps or "20 (width <= 64), 6 (wider)", "repeats": args.repeats,
                       "reference": "DPT DarkRoom setup (benchmarks/dpt_reference.py)" if with_reference else
                       "not run (pip install -e .[bench] for transformers)", "results": results}, indent=2))

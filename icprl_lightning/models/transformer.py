@@ -42,39 +42,48 @@ class KVCache:
 
     Slots [0, length) hold the context; a query writes its own key and value into the slots after it in
     place, so an act() never copies the cache (a torch.cat per layer per step did, and was the largest
-    cost of deployment with a small model).
+    cost of deployment with a small model). Keys are stored transposed, (B, nh, hs, slots), so an act()'s
+    q kᵀ is a plain batched matrix product over contiguous rows (``decode_attention``).
     """
 
-    keys: list[Tensor]    # per layer (B, nh, T + slots, hs)
+    keys: list[Tensor]    # per layer (B, nh, hs, T + slots): transposed
     values: list[Tensor]  # per layer (B, nh, T + slots, hs)
     length: int           # T, the context tokens
     # merged layout (models/policy.py): the last context step's token (B, 1, D), added to every query token
     carry: Tensor | None = None
 
+    @property
+    def capacity(self) -> int:
+        """Slots in the buffers: the context's ``length`` and the free ones after it."""
+        return self.values[0].shape[2]
+
     def reserve(self, n_queries: int) -> None:
         """Make room for ``n_queries`` query slots after the context (copies the cache only when it grows)."""
-        if self.keys[0].shape[2] - self.length >= n_queries:
+        if self.capacity - self.length >= n_queries:
             return
         for i, (k, v) in enumerate(zip(self.keys, self.values, strict=True)):
-            shape = (*k.shape[:2], self.length + n_queries, k.shape[3])
-            self.keys[i] = k.new_empty(shape)
-            self.values[i] = v.new_empty(shape)
-            self.keys[i][:, :, : self.length] = k[:, :, : self.length]
+            slots = self.length + n_queries
+            self.keys[i] = k.new_empty((*k.shape[:3], slots))
+            self.values[i] = v.new_empty((*v.shape[:2], slots, v.shape[3]))
+            self.keys[i][..., : self.length] = k[..., : self.length]
             self.values[i][:, :, : self.length] = v[:, :, : self.length]
 
 
-def decode_attention(q: Tensor, k: Tensor, v: Tensor, mask: Tensor | None) -> Tensor:
+def decode_attention(q: Tensor, k_t: Tensor, v: Tensor, mask: Tensor | None) -> Tensor:
     """softmax(q kᵀ / √d, masked) v for a few query tokens against a long cache, as two batched matmuls.
 
-    The same attention as ``F.scaled_dot_product_attention``; on CPU its fused kernel tiles over query
-    blocks and costs several times more than this for one query token per sequence (an act()), which is
-    bandwidth-bound on reading the cache (``benchmarks/deployment_throughput.py``). ``mask`` None means
+    ``k_t`` is the cache's keys already transposed, (B, nh, hs, T). The same attention as
+    ``F.scaled_dot_product_attention``; on CPU its fused kernel tiles over query blocks and costs several times
+    more than this for one query token per sequence (an act()), which is bound by reading the cache. With the
+    keys stored transposed the first product reads contiguous rows; in scratch timings of 100 tasks × 4 heads of
+    8 it was about a quarter faster than a transposed view, and ``einsum`` slower still, but the whole act()
+    gained only a few percent (``benchmarks/deployment_throughput.py`` measures the act()). ``mask`` None means
     every query sees every key (one query token after the context: an act()), and skips the masking.
     """
-    scores = torch.einsum("bhqd,bhkd->bhqk", q, k).mul_(q.shape[-1] ** -0.5)
+    scores = torch.matmul(q, k_t).mul_(q.shape[-1] ** -0.5)
     if mask is not None:
         scores.masked_fill_(~mask, float("-inf"))
-    return torch.einsum("bhqk,bhkd->bhqd", scores.softmax(-1), v)
+    return torch.matmul(scores.softmax(-1), v)
 
 
 class SelfAttention(nn.Module):
@@ -96,9 +105,9 @@ class SelfAttention(nn.Module):
         q, k, v = (z.view(b, t, self.n_head, c // self.n_head).transpose(1, 2) for z in (q, k, v))  # (B, nh, t, hs)
         if past is not None:
             end = past_length + t
-            past[0][:, :, past_length:end] = k
+            past[0][..., past_length:end] = k.transpose(-1, -2)
             past[1][:, :, past_length:end] = v
-            y = decode_attention(q, past[0][:, :, :end], past[1][:, :, :end], mask)
+            y = decode_attention(q, past[0][..., :end], past[1][:, :, :end], mask)
         else:
             y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, is_causal=causal,
                                                dropout_p=self.dropout if self.training else 0.0)
@@ -198,14 +207,14 @@ class CausalTransformer(nn.Module):
         mask = torch.ones(t, t, dtype=torch.bool, device=context.device).tril()
         n_head = self.blocks[0].attn.n_head
         shape = (b, n_head, t + 1, d // n_head)  # one act() = one query token
-        keys = [x_all.new_empty(shape) for _ in self.blocks]
+        keys = [x_all.new_empty((b, n_head, d // n_head, t + 1)) for _ in self.blocks]  # transposed
         values = [x_all.new_empty(shape) for _ in self.blocks]
         for start in range(0, b, ENCODE_ROWS):
             rows = slice(start, start + ENCODE_ROWS)
             x = x_all[rows]
             for block, k_buf, v_buf in zip(self.blocks, keys, values, strict=True):
                 x, (k, v) = block(x, mask)
-                k_buf[rows, :, :t] = k
+                k_buf[rows, :, :, :t] = k.transpose(-1, -2)
                 v_buf[rows, :, :t] = v
         return KVCache(keys, values, t)
 
@@ -227,7 +236,8 @@ class CausalTransformer(nn.Module):
         attn = self.blocks[0].attn
         n_embd = attn.qkv.in_features
         shape = (batch_size, attn.n_head, 1, n_embd // attn.n_head)  # (B, nh, 1 slot, hs)
-        keys = [torch.zeros(shape, dtype=param.dtype, device=device) for _ in self.blocks]
+        keys = [torch.zeros(shape, dtype=param.dtype, device=device).transpose(-1, -2).contiguous()
+                for _ in self.blocks]
         values = [torch.zeros(shape, dtype=param.dtype, device=device) for _ in self.blocks]
         return KVCache(keys, values, 0)
 
@@ -244,7 +254,7 @@ class CausalTransformer(nn.Module):
             raise ValueError(f"tokens must have shape [B={b}, n, D={d}], got {list(tokens.shape)}")
         t, n = cache.length, tokens.shape[1]
         self._check_length(t + n)
-        capacity = cache.keys[0].shape[2]
+        capacity = cache.capacity
         if capacity < t + n + 1:  # room for the new tokens and one query slot after them
             target = max(t + n + 1, min(2 * capacity, self.max_context + 1))
             cache.reserve(target - t)

@@ -178,6 +178,8 @@ def table_title(table: str) -> str:
 
 
 def command_of(table: str) -> str:
+    if table == "speed":
+        return "python benchmarks/<script>.py: each JSON's own command is on speed/summary.md"
     if (EXPERIMENTS / f"{table}.yaml").exists():
         return f"icprl reproduce {table}"
     return "an investigation outside the experiment files: see the notebook (docs/notebook.md)"
@@ -408,6 +410,7 @@ def rendered(root: Path = RESULTS) -> dict[Path, str]:
     from icprl_lightning.evaluation.ad_command import ad_markdown, is_ad_payload
     from icprl_lightning.evaluation.online_bandit import online_bandit_markdown
     from icprl_lightning.evaluation.report import markdown_tables
+    from icprl_lightning.reproduce.speed import speed_page
 
     pages: dict[Path, str] = {}
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
@@ -415,7 +418,7 @@ def rendered(root: Path = RESULTS) -> dict[Path, str]:
             pages[folder / f"{name}.md"] = (ad_markdown if is_ad_payload(payload) else markdown_tables)(payload)
         for name, payload in online_bandit_in(folder):  # the regrets of `icprl evaluate online` on a bandit
             pages[folder / f"{name}.md"] = online_bandit_markdown(payload)
-        page = summary_page(folder)
+        page = summary_page(folder) or speed_page(folder)
         if page is not None:
             pages[folder / "summary.md"] = page
     pages[root / "index.md"] = index_page(root, pages)

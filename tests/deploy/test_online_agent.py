@@ -135,10 +135,12 @@ def test_extend_equals_encode_and_grows_geometrically():
     cache, capacities = net.empty_cache(2), []
     for i in range(20):
         net.extend(cache, tokens[:, i:i + 1])
-        capacities.append(cache.keys[0].shape[2])
+        capacities.append(cache.capacity)
     ref = net.encode(tokens)
-    for k, k_ref in zip(cache.keys + cache.values, ref.keys + ref.values, strict=True):
-        torch.testing.assert_close(k[:, :, :20], k_ref[:, :, :20], **TOL)
+    for k, k_ref in zip(cache.keys, ref.keys, strict=True):  # stored transposed: (B, nh, hs, slots)
+        torch.testing.assert_close(k[..., :20], k_ref[..., :20], **TOL)
+    for v, v_ref in zip(cache.values, ref.values, strict=True):
+        torch.testing.assert_close(v[:, :, :20], v_ref[:, :, :20], **TOL)
     torch.testing.assert_close(net.query(cache, q), net(tokens, q, torch.tensor([20])), **TOL)
     assert len(set(capacities)) <= 6 and max(capacities) == 21  # 2, 4, 8, 16, 21: O(log T) copies, capped
     # several tokens at once after an encoded prefix

@@ -49,7 +49,8 @@ def test_encode_in_row_chunks_equals_the_whole_batch():
     b = 2 * ENCODE_ROWS + 3
     ctx = torch.randn(b, 8, 16)
     cache = net.encode(ctx)
-    assert cache.length == 8 and cache.keys[0].shape == (b, 2, 9, 8)
+    assert cache.length == 8 and cache.capacity == 9
+    assert cache.keys[0].shape == (b, 2, 8, 9) and cache.values[0].shape == (b, 2, 9, 8)  # keys transposed
     for q in (torch.randn(b, 1, 16), torch.randn(b, 3, 16)):
         full = net(ctx, q, torch.full((q.shape[1],), 8))
         torch.testing.assert_close(net.query(cache, q), full, atol=1e-5, rtol=1e-5)
