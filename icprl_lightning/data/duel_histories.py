@@ -21,38 +21,27 @@ outcomes, round by round: no rewards, utilities or θ reach a batch, so the AD t
   [B, T, 0] (the bandit context kind: token h holds duel h and its outcome); ``windows_per_epoch`` windows make
   an epoch. Validation windows are fixed: ``val_windows_per_history`` evenly spaced offsets per val history.
 
-The targets are in the windows themselves: AD scores each duel (a_h, a'_h) given the duels before it
-(``ADModule.loss``). No held-out suites are offered (``offers`` is empty): AD plays online, evaluated by
-``evaluation.online_bandit`` (``icprl evaluate online --ad-ckpt``), not from a stored context.
+What it shares with ``data/learning_histories.py`` (the ``HistoryWindows`` Dataset, the storage, the loaders and
+the refusals of the data contract) is ``HistoryWindowDataModule`` (``data/history_windows.py``); here are the
+problems, DTS, the window and the duel context. The targets are in the windows themselves: AD scores each duel
+(a_h, a'_h) given the duels before it (``ADModule.loss``). No held-out suites are offered (``offers`` is empty): AD
+plays online, evaluated by ``evaluation.online_bandit`` (``icprl evaluate online --ad-ckpt``), not from a stored
+context.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
-from pathlib import Path
 from typing import Any
 
-import lightning as L
 import numpy as np
 import torch
 from torch import Tensor
-from torch.utils.data import BatchSampler, DataLoader, RandomSampler, SequentialSampler
 
-from icprl_lightning.contexts import ActionSpec, StepPreferenceContext
-from icprl_lightning.data.learning_histories import HistoryWindows
-from icprl_lightning.data.store import (
-    StoredDataset,
-    check_replaceable_dataset,
-    dataset_lock,
-    load_dataset,
-    write_dataset,
-)
-from icprl_lightning.data_contract import EVALUATIONS
+from icprl_lightning.contexts import StepPreferenceContext
+from icprl_lightning.data.history_windows import HistoryWindowDataModule
 from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
 from icprl_lightning.families.dueling_bandit.learning_histories import HISTORY_FIELDS, DTSHistories
 from icprl_lightning.progress import track
-from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError, check_int
 
 KIND = "step_preference"
@@ -68,7 +57,7 @@ def duel_window(window: dict[str, Tensor]) -> StepPreferenceContext:
     return StepPreferenceContext(torch.zeros(*first.shape, 0), first, window["arms_second"], window["preferred"])
 
 
-class DuelHistoryDataModule(L.LightningDataModule):
+class DuelHistoryDataModule(HistoryWindowDataModule):
     """DTS's learning histories on ``family``'s training problems, served as windows; see the module docstring.
 
     Args:
@@ -87,65 +76,39 @@ class DuelHistoryDataModule(L.LightningDataModule):
         progress: a progress bar while DTS runs.
     """
 
-    pairs = False          # a window is its own context and its own targets: nothing served beside it
-    query_labels = False
-    offers: frozenset[str] = frozenset()  # played online (evaluation/online_bandit.py), not on stored contexts
+    family_type = LinearDuelingBanditFamily
+    learner_type = DTSHistories
+    kind = KIND
+    fields = HISTORY_FIELDS
+    served = SERVED
+    store_name = "dts_history"
+    histories = "DTS histories"
+    generating = "DTS learning histories"
+    suites_note = " (AD is evaluated online: icprl evaluate online --ad-ckpt)"
+    unique_val_offsets = True  # distinct offsets: a window is a whole history by default
 
     def __init__(self, family: LinearDuelingBanditFamily, learner: DTSHistories | None = None,
                  n_train_problems: int = 1000, n_val_problems: int = 64, n_eval_problems: int = 200,
                  window: int | None = None, windows_per_epoch: int = 2048, val_windows_per_history: int = 1,
                  batch_size: int = 32, data_dir: str | None = None, root_dir: str = "data", overwrite: bool = False,
                  verify_checksums: bool = True, progress: bool = True) -> None:
-        owner = type(self).__name__
-        if not isinstance(family, LinearDuelingBanditFamily):
-            raise HyperparameterError(f"{owner}: family must be a LinearDuelingBanditFamily, got "
-                                      f"{type(family).__name__}")
-        learner = DTSHistories() if learner is None else learner
-        if not isinstance(learner, DTSHistories):
-            raise HyperparameterError(f"{owner}: learner must be a DTSHistories, got {type(learner).__name__}")
-        for key, value in (("n_train_problems", n_train_problems), ("n_val_problems", n_val_problems),
-                           ("n_eval_problems", n_eval_problems), ("windows_per_epoch", windows_per_epoch),
-                           ("val_windows_per_history", val_windows_per_history), ("batch_size", batch_size)):
-            check_int(owner, key, value, 1)
+        counts = {"n_train_problems": n_train_problems, "n_val_problems": n_val_problems,
+                  "n_eval_problems": n_eval_problems}
+        super().__init__(family, learner, counts, windows_per_epoch, val_windows_per_history, batch_size, data_dir,
+                         root_dir, overwrite, verify_checksums, progress)
+        rounds = self.learner.rounds
         if window is not None:
-            check_int(owner, "window", window, 1)
-            if window > learner.rounds:
-                raise HyperparameterError(f"{owner}: window must be <= the learner's rounds ({learner.rounds}): a "
-                                          f"window lies inside one history, got {window}")
-        super().__init__()
-        self.family, self.learner = family, learner
+            check_int(type(self).__name__, "window", window, 1)
+            if window > rounds:
+                raise HyperparameterError(f"{type(self).__name__}: window must be <= the learner's rounds ({rounds}): "
+                                          f"a window lies inside one history, got {window}")
         self.n_problems = {"train": n_train_problems, "val": n_val_problems, "test": n_eval_problems}
-        self.window = learner.rounds if window is None else window
-        self.windows_per_epoch, self.val_windows_per_history = windows_per_epoch, val_windows_per_history
-        self.batch_size = batch_size
-        self.data_dir, self.root_dir = data_dir, root_dir
-        self.overwrite, self.verify_checksums, self.progress = overwrite, verify_checksums, progress
-        self.dataset: StoredDataset | None = None
-
-    # ---- the data contract (data_contract.PreferenceData) ----------------------------------------------
-    @property
-    def context_kind(self) -> str:
-        return KIND
-
-    @property
-    def state_dim(self) -> int:
-        return 0
-
-    @property
-    def action_spec(self) -> ActionSpec:
-        return self.family.action_spec
+        self.window = rounds if window is None else window
 
     @property
     def context_length(self) -> int:
         """Rounds per window (the model's ``max_context``)."""
         return self.window
-
-    @property
-    def metric_env(self) -> str:
-        return self.family.metric_env
-
-    def batch_fields(self) -> tuple[str, ...]:
-        return SERVED
 
     def train_arrays(self) -> dict[str, np.ndarray]:
         """The training histories as the served fields (states of width 0; arms memory-mapped)."""
@@ -158,29 +121,11 @@ class DuelHistoryDataModule(L.LightningDataModule):
         """None: AD plays online (``evaluation.online_bandit``), not on a stored context."""
         return []
 
-    def bandit_suites(self) -> list:
-        raise ValueError(f"DTS histories offer no bandit_suites; it needs {EVALUATIONS['bandit_suites']} (AD is "
-                         "evaluated online: icprl evaluate online --ad-ckpt)")
-
-    def heldout_pairs(self) -> dict[str, ContextSamples]:
-        raise ValueError(f"DTS histories offer no heldout_pairs; it needs {EVALUATIONS['heldout_pairs']}")
-
     # ---- storage -------------------------------------------------------------------------------------
     def generator_config(self) -> dict[str, Any]:
         """Everything that determines the dataset's bytes (compared against the manifest on load)."""
         return {**self.family.config(), **self.learner.config(), "setting": "DTSHistories",
                 **{f"n_{split}_problems": n for split, n in self.n_problems.items()}}
-
-    @property
-    def path(self) -> Path:
-        if self.data_dir is not None:
-            return Path(self.data_dir)
-        digest = hashlib.sha256(json.dumps(self.generator_config(), sort_keys=True).encode()).hexdigest()[:10]
-        return Path(self.root_dir) / f"{self.family.name}-dts_history-{digest}"
-
-    @property
-    def regenerate_hint(self) -> str:
-        return f"delete {self.path} (or pass --data.init_args.overwrite true); fit generates a missing dataset"
 
     def generate(self) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
         """``tasks``, ``train`` and ``val`` (one seed stream per split, as ``BanditDuels``) and the manifest's info."""
@@ -216,48 +161,13 @@ class DuelHistoryDataModule(L.LightningDataModule):
             out[f"last_{n}_rounds_{name}_regret"] = round(float(regret[:, -n:].mean()), 4)
         return out
 
-    def prepare_data(self) -> None:
-        path = self.path
-        with dataset_lock(path):  # a second process waits here, then finds the dataset made by the first
-            if not self.overwrite and (path.exists() or path.is_symlink()):
-                self._read(verify=False)
-                return
-            check_replaceable_dataset(path)
-            if self.progress:
-                print(f"generating DTS learning histories -> {path}", flush=True)
-            splits, info = self.generate()
-            write_dataset(path, splits, self.generator_config(), info=info, overwrite=True)
-        self.overwrite = False
-
-    def _read(self, verify: bool) -> StoredDataset:
-        data = load_dataset(self.path, self.generator_config(), verify=verify, regenerate_hint=self.regenerate_hint)
-        needs = {"tasks": [f"{s}_theta" for s in SPLITS], **dict.fromkeys(("train", "val"),
-                                                                            [*HISTORY_FIELDS, "task_index"])}
-        data.require(needs, self.regenerate_hint)
-        return data
-
-    def load(self) -> StoredDataset:
-        if self.dataset is None:
-            self.dataset = self._read(verify=self.verify_checksums)
-        return self.dataset
+    def required_arrays(self) -> dict[str, list[str]]:
+        return {"tasks": [f"{s}_theta" for s in SPLITS], **dict.fromkeys(("train", "val"),
+                                                                         [*HISTORY_FIELDS, "task_index"])}
 
     # ---- batches -------------------------------------------------------------------------------------
-    def val_offsets(self) -> np.ndarray:
-        """(row, offset) of every validation window [M, 2]: evenly spaced (distinct) offsets in each val history."""
-        rows, rounds = self.load()["val"]["arms_first"].shape
-        starts = np.unique(np.linspace(0, rounds - self.window, self.val_windows_per_history).astype(np.int64))
-        return np.stack(np.meshgrid(np.arange(rows), starts, indexing="ij"), axis=-1).reshape(-1, 2)
+    def histories_per_task(self, split: str) -> int:
+        return 1  # one DTS history per problem
 
-    def _windows(self, split: str, size: int, offsets: np.ndarray | None) -> HistoryWindows:
-        return HistoryWindows(self.load()[split], self.window, 1, size, offsets, fields=HISTORY_FIELDS,
-                              build=duel_window)
-
-    def train_dataloader(self) -> DataLoader:
-        data = self._windows("train", self.windows_per_epoch, None)
-        sampler = BatchSampler(RandomSampler(data), self.batch_size, drop_last=len(data) >= self.batch_size)
-        return DataLoader(data, sampler=sampler, batch_size=None)
-
-    def val_dataloader(self) -> DataLoader:
-        data = self._windows("val", 0, self.val_offsets())
-        return DataLoader(data, sampler=BatchSampler(SequentialSampler(data), self.batch_size, drop_last=False),
-                          batch_size=None)
+    def window_context(self, window: dict[str, Tensor]) -> StepPreferenceContext:
+        return duel_window(window)
