@@ -5,8 +5,9 @@ context quality first reaches a target (85 by default), for each execution varia
 
 Each variant is one ``icprl fit --config configs/icpo_darkroom.yaml`` (the default data and training seed 0)
 with the rollout callback every ``--every`` optimizer steps, stopped by ``EarlyStopping(stopping_threshold=)``
-once the medium-quality return reaches the target. ``TrainingClock`` logs the training seconds without
-validation and rollouts, so a variant that is faster per step but learns worse per step shows it here. The
+once the medium-quality return reaches the target. ``TrainingClock`` (a default callback of every fit) logs the
+training seconds without validation and rollouts, so a variant that is faster per step but learns worse per step
+shows it here. The
 variants run one after another, each with the whole machine (``--threads``). Prints JSON: per variant the
 first step and training seconds at which the target was reached (or null), and its whole curve.
 """
@@ -51,7 +52,6 @@ def fit(overrides: tuple[str, ...], out: Path, target: float, max_steps: int, ev
                "--trainer.check_val_every_n_epoch", "null", "--trainer.limit_val_batches", "1",
                "--trainer.logger", "lightning.pytorch.loggers.CSVLogger", "--trainer.logger.init_args.save_dir",
                str(out), "--trainer.default_root_dir", str(out),
-               "--trainer.callbacks+=icprl_lightning.callbacks.training_clock.TrainingClock",
                "--trainer.callbacks+=lightning.pytorch.callbacks.EarlyStopping",
                "--trainer.callbacks.monitor", METRIC, "--trainer.callbacks.mode", "max",
                "--trainer.callbacks.stopping_threshold", str(target), "--trainer.callbacks.patience", "1000000",

@@ -74,28 +74,33 @@ def teacher_noise_figure(table: Table, out_dir: Path) -> None:
 
 
 def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -> None:
-    """Held-out return vs optimizer steps, one panel per quality, one line per run (each training seed thin)."""
+    """Held-out return vs optimizer steps, one panel per quality, one line per run (each training seed thin); a
+    second row vs training seconds (``TrainingClock``) when the fits logged them."""
     from matplotlib.figure import Figure
 
-    found = {k for per in curves.values() for c in per.values() for p in c for k in p if k != "step"}
+    axes_keys = ("step", "train_seconds")
+    found = {k for per in curves.values() for c in per.values() for p in c for k in p if k not in axes_keys}
     qualities = [q for q in QUALITIES if q in found] + sorted(found - set(QUALITIES))
     if not qualities:
         return
-    fig = Figure(figsize=(3.6 * len(qualities) + 1.5, 3.2), layout="tight")
-    axes = fig.subplots(1, len(qualities), sharey=True, squeeze=False)[0]
-    for ax, quality in zip(axes, qualities, strict=True):
-        for i, (name, per_seed) in enumerate(curves.items()):
-            color = f"C{i}"
-            for j, curve in enumerate(per_seed.values()):
-                points = [(p["step"], p[quality]) for p in curve if quality in p]
-                if points:
-                    ax.plot(*zip(*points, strict=True), color=color, alpha=0.8, marker=".",
-                            label=name if j == 0 else None)
-        ax.set_title(f"{quality} contexts", fontsize=9)
-        ax.set_xlabel("optimizer steps")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("held-out return (rollout callback)")
-    axes[-1].legend(fontsize=7)
+    timed = any("train_seconds" in p for per in curves.values() for c in per.values() for p in c)
+    x_axes = [("step", "optimizer steps")] + ([("train_seconds", "training seconds (no validation)")] if timed else [])
+    fig = Figure(figsize=(3.6 * len(qualities) + 1.5, 3.2 * len(x_axes)), layout="tight")
+    grid = fig.subplots(len(x_axes), len(qualities), sharey=True, squeeze=False)
+    for axes, (x_key, x_label) in zip(grid, x_axes, strict=True):
+        for ax, quality in zip(axes, qualities, strict=True):
+            for i, (name, per_seed) in enumerate(curves.items()):
+                color = f"C{i}"
+                for j, curve in enumerate(per_seed.values()):
+                    points = [(p[x_key], p[quality]) for p in curve if quality in p and x_key in p]
+                    if points:
+                        ax.plot(*zip(*points, strict=True), color=color, alpha=0.8, marker=".",
+                                label=name if j == 0 else None)
+            ax.set_title(f"{quality} contexts", fontsize=9)
+            ax.set_xlabel(x_label)
+            ax.grid(alpha=0.3)
+        axes[0].set_ylabel("held-out return (rollout callback)")
+    grid[0][-1].legend(fontsize=7)
     fig.suptitle(figure_title(f"{table.title}: return during training, one line per training seed",
                               fig.get_figwidth()), fontsize=9)
     fig.savefig(path, dpi=120)

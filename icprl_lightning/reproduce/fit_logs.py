@@ -19,13 +19,20 @@ def logged_rows(checkpoint: str) -> list[dict[str, str]]:
 
 def learning_curve(checkpoint: str) -> list[dict[str, float]]:
     """The rollout callback's held-out returns per validation epoch of a fit (its CSV log beside the checkpoint):
-    ``[{"step": s, "<quality>": return, ...}]``, empty when the fit logged none."""
+    ``[{"step": s, "<quality>": return, ..., "train_seconds": t}]``, empty when the fit logged none.
+    ``train_seconds`` (``TrainingClock``: training wall-clock without validation) is there when the fit logged it."""
     points: dict[int, dict[str, float]] = {}
+    seconds: dict[int, float] = {}
     for row in logged_rows(checkpoint):
+        if row.get("time/train_seconds"):
+            seconds[int(row["step"])] = round(float(row["time/train_seconds"]), 1)
         for key, value in row.items():
             parts = key.split("/")
             if value and len(parts) == 4 and parts[0] == "val" and parts[3] == "return":
                 points.setdefault(int(row["step"]), {"step": int(row["step"])})[parts[2]] = float(value)
+    for step, point in points.items():
+        if step in seconds:
+            point["train_seconds"] = seconds[step]
     return [points[s] for s in sorted(points)]
 
 

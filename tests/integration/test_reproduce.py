@@ -70,9 +70,11 @@ def test_a_tiny_table_trains_two_seeds_evaluates_and_resumes(tmp_path, monkeypat
     # the evaluation read the run's own dataset: the uniform-state one of the overlay
     saved = json.loads((tmp_path / "out" / "tiny_reproduce.json").read_text())
     assert "uniform_states.yaml" in saved["fits"]["ICPO-seed0"]["command"]
-    # each fit's CSV log gives its held-out return per validation epoch (the rollout callback's)
+    # each fit's CSV log gives its held-out return per validation epoch (the rollout callback's), and the
+    # training seconds at that point (TrainingClock, a default callback)
     curve = saved["learning_curves"]["ICPO"]["0"]
-    assert len(curve) == 1 and set(curve[0]) == {"step", "low", "medium", "high"}
+    assert len(curve) == 1 and set(curve[0]) == {"step", "low", "medium", "high", "train_seconds"}
+    assert curve[0]["train_seconds"] > 0
     assert (tmp_path / "out" / "tiny_curve.png").stat().st_size > 0
     # a second call finds both fits recorded and trains nothing
     again = reproduce(table, [0, 1], jobs=2, work=tmp_path / "work", out_dir=tmp_path / "out")
@@ -283,11 +285,11 @@ def test_final_epoch_means_average_the_last_epochs_training_metrics(tmp_path):
 
     (tmp_path / "checkpoints").mkdir()
     (tmp_path / "metrics.csv").write_text(
-        "epoch,step,train/clipped_fraction,val/darkroom/low/return\n"
-        "0,10,0.9,\n1,20,0.1,\n1,30,0.3,\n1,30,,12.5\n")
+        "epoch,step,train/clipped_fraction,val/darkroom/low/return,time/train_seconds\n"
+        "0,10,0.9,,\n1,20,0.1,,\n1,30,0.3,,\n1,30,,12.5,4.04\n")
     checkpoint = str(tmp_path / "checkpoints" / "last.ckpt")
     assert final_epoch_means(checkpoint) == {"clipped_fraction": pytest.approx(0.2)}  # epoch 0's 0.9 left out
-    assert learning_curve(checkpoint) == [{"step": 30, "low": 12.5}]
+    assert learning_curve(checkpoint) == [{"step": 30, "low": 12.5, "train_seconds": 4.0}]
     assert final_epoch_means(str(tmp_path / "elsewhere" / "checkpoints" / "last.ckpt")) == {}
 
 
