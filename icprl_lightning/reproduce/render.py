@@ -185,7 +185,8 @@ def command_of(table: str) -> str:
     return "an investigation outside the experiment files: see the notebook (docs/notebook.md)"
 
 
-def _payloads(folder: Path, kind) -> list[tuple[str, dict[str, Any]]]:
+def payloads_in(folder: Path, kind) -> list[tuple[str, dict[str, Any]]]:
+    """The JSON files of ``folder`` whose content ``kind`` accepts, by stem (unreadable ones skipped)."""
     out = []
     for path in sorted(folder.glob("*.json")):
         try:
@@ -199,14 +200,14 @@ def _payloads(folder: Path, kind) -> list[tuple[str, dict[str, Any]]]:
 
 def evaluations_in(folder: Path) -> list[tuple[str, dict[str, Any]]]:
     """The ``icprl evaluate`` (and ``icprl evaluate ad``) JSONs of ``folder``, by stem."""
-    return _payloads(folder, is_evaluation)
+    return payloads_in(folder, is_evaluation)
 
 
 def online_bandit_in(folder: Path) -> list[tuple[str, dict[str, Any]]]:
     """The JSONs of ``icprl evaluate online`` on a dueling bandit in ``folder``, by stem."""
     from icprl_lightning.evaluation.online_bandit import is_online_bandit_payload
 
-    return _payloads(folder, is_online_bandit_payload)
+    return payloads_in(folder, is_online_bandit_payload)
 
 
 def summary_page(folder: Path) -> str | None:

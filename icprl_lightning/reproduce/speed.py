@@ -11,7 +11,6 @@ learning speed (``results``: variant -> numbers and a curve) and the data-genera
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -21,17 +20,15 @@ CONTEXT_KEYS = ("torch_threads", "threads", "tasks", "horizon", "repeats", "step
                 "reference", "default", "config", "seed")
 
 
+def is_benchmark(payload: Any) -> bool:
+    return isinstance(payload, dict) and "benchmark" in payload
+
+
 def speed_payloads(folder: Path) -> list[tuple[str, dict[str, Any]]]:
     """The benchmark JSONs of ``folder`` (objects with a ``benchmark`` key), by stem."""
-    out = []
-    for path in sorted(folder.glob("*.json")):
-        try:
-            payload = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            continue
-        if isinstance(payload, dict) and "benchmark" in payload:
-            out.append((path.stem, payload))
-    return out
+    from icprl_lightning.reproduce.render import payloads_in
+
+    return payloads_in(folder, is_benchmark)
 
 
 def _cell(value: Any) -> str:
