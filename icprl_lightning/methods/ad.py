@@ -73,13 +73,15 @@ class ADModule(InContextModule):
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
                  context_kind: str = "reward_trajectory", backbone: TransformerConfig = DEFAULT_BACKBONE,
-                 lr: float = 3e-4, weight_decay: float = 0.0, normalize_inputs: bool = False) -> None:
+                 lr: float = 3e-4, weight_decay: float = 0.0, normalize_inputs: bool = False,
+                 lr_schedule: str = "constant", warmup_steps: int = 0) -> None:
         check_choice(type(self).__name__, "context_kind", context_kind, HISTORY_KINDS)
         if context_kind == "step_preference" and not discrete:
             raise HyperparameterError("ADModule: context_kind step_preference predicts the next duel as one of A² "
                                       "ordered pairs of discrete actions; this data's actions are continuous")
         super().__init__(context_kind, state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
-                         weight_decay=weight_decay, normalize_inputs=normalize_inputs, layout="merged")
+                         weight_decay=weight_decay, normalize_inputs=normalize_inputs, layout="merged",
+                         lr_schedule=lr_schedule, warmup_steps=warmup_steps)
         if self.duels:  # one logit per ordered pair (a, a'): the policy's head, so every deployment path uses it
             self.policy.head = nn.Linear(self.backbone.n_embd, action_dim * action_dim)
 

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from icprl_lightning.contexts import ActionSpec, Context
+from icprl_lightning.methods.schedule import LR_SCHEDULES, with_schedule
 from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
 from icprl_lightning.models.normalization import InputNormalizer
 from icprl_lightning.models.policy import LAYOUTS, InContextPolicy
@@ -68,12 +69,14 @@ class InContextModule(L.LightningModule):
     def __init__(self, context_kind: str, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
                  backbone: TransformerConfig = DEFAULT_BACKBONE, lr: float = 3e-4, weight_decay: float = 0.0,
                  queries_per_context: int | None = None, normalize_inputs: bool = False,
-                 layout: str = "appended") -> None:
+                 layout: str = "appended", lr_schedule: str = "constant", warmup_steps: int = 0) -> None:
         owner = type(self).__name__
         check_kind(owner, "context_kind", context_kind)
         check_sizes(owner, state_dim, action_dim)
         check_int(owner, "max_context", max_context, 1)
         check_optimizer(owner, lr, weight_decay)
+        check_choice(owner, "lr_schedule", lr_schedule, LR_SCHEDULES)
+        check_int(owner, "warmup_steps", warmup_steps, 0)
         if queries_per_context is not None:
             check_int(owner, "queries_per_context", queries_per_context, 1)
         check_choice(owner, "normalize_inputs", normalize_inputs, (True, False))
@@ -133,8 +136,11 @@ class InContextModule(L.LightningModule):
         self.log("val/loss", loss, prog_bar=True, sync_dist=True, batch_size=batch.batch_size)
         self.log_dict({f"val/{k}": v for k, v in metrics.items()}, sync_dist=True, batch_size=batch.batch_size)
 
-    def configure_optimizers(self) -> torch.optim.Optimizer:
-        return torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+    def configure_optimizers(self):
+        """AdamW at ``lr``, constant or on the warm-up + cosine schedule of ``methods/schedule.py``."""
+        optimizer = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        return with_schedule(optimizer, self.hparams.get("lr_schedule", "constant"),
+                             self.hparams.get("warmup_steps", 0), int(self.trainer.estimated_stepping_batches))
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""

@@ -38,10 +38,11 @@ class DPTModule(SupervisedPretrainingModule):
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
                  backbone: TransformerConfig = DEFAULT_BACKBONE, lr: float = 3e-4, weight_decay: float = 0.0,
-                 queries_per_context: int | None = None, normalize_inputs: bool = False) -> None:
+                 queries_per_context: int | None = None, normalize_inputs: bool = False, lr_schedule: str = "constant",
+                 warmup_steps: int = 0) -> None:
         super().__init__("reward", state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
                          weight_decay=weight_decay, queries_per_context=queries_per_context,
-                         normalize_inputs=normalize_inputs)
+                         normalize_inputs=normalize_inputs, lr_schedule=lr_schedule, warmup_steps=warmup_steps)
 
 
 class DP2TModule(SupervisedPretrainingModule):
@@ -50,11 +51,12 @@ class DP2TModule(SupervisedPretrainingModule):
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
                  context_kind: str = "step_preference", backbone: TransformerConfig = DEFAULT_BACKBONE,
                  lr: float = 3e-4, weight_decay: float = 0.0, queries_per_context: int | None = None,
-                 normalize_inputs: bool = False) -> None:
+                 normalize_inputs: bool = False, lr_schedule: str = "constant",
+                 warmup_steps: int = 0) -> None:
         if context_kind not in PREFERENCE_KINDS:
             raise HyperparameterError(f"DP2TModule: context_kind must be one of {list(PREFERENCE_KINDS)}, got "
                                       f"{context_kind!r} (DP2T conditions on preferences; a reward context makes "
                                       "it DPT, DPTModule)")
         super().__init__(context_kind, state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
                          weight_decay=weight_decay, queries_per_context=queries_per_context,
-                         normalize_inputs=normalize_inputs)
+                         normalize_inputs=normalize_inputs, lr_schedule=lr_schedule, warmup_steps=warmup_steps)

@@ -57,7 +57,8 @@ class ICPOModule(InContextModule):
                  lam: float = 0.5, pair_source: str = "other_trajectory", lambda_on_preferred: bool = False,
                  squared_distance: bool = False, backbone: TransformerConfig = DEFAULT_BACKBONE,
                  lr: float = 3e-4, weight_decay: float = 0.0, queries_per_context: int | None = None,
-                 pair_steps: str = "shuffled", normalize_inputs: bool = False, layout: str = "appended") -> None:
+                 pair_steps: str = "shuffled", normalize_inputs: bool = False, layout: str = "appended",
+                 lr_schedule: str = "constant", warmup_steps: int = 0) -> None:
         check_choice("ICPOModule", "pair_source", pair_source, PAIR_SOURCES)
         check_choice("ICPOModule", "pair_steps", pair_steps, PAIR_STEPS)
         check_positive("ICPOModule", "beta", beta)
@@ -77,7 +78,8 @@ class ICPOModule(InContextModule):
                                       "must be null")
         super().__init__("step_preference", state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
                          weight_decay=weight_decay, queries_per_context=queries_per_context,
-                         normalize_inputs=normalize_inputs, layout=layout)
+                         normalize_inputs=normalize_inputs, layout=layout, lr_schedule=lr_schedule,
+                         warmup_steps=warmup_steps)
 
     @property
     def needs_pairs(self) -> bool:  # type: ignore[override]

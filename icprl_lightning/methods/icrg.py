@@ -144,13 +144,15 @@ class ICRGModule(DITModule):
                  cross_fit_hparams: list[dict[str, Any]] | None = None, gamma: float = 0.95, eta: float = 1.0,
                  max_weight: float = 20.0, value_epochs: int = 2, backbone: TransformerConfig = DEFAULT_BACKBONE,
                  lr: float = 3e-4, weight_decay: float = 0.0, center_advantages: bool = True,
-                 advantage: str = "q_minus_v", normalize_inputs: bool = False) -> None:
+                 advantage: str = "q_minus_v", normalize_inputs: bool = False, lr_schedule: str = "constant",
+                 warmup_steps: int = 0) -> None:
         if advantage == "oracle":
             raise HyperparameterError("ICRGModule: advantage 'oracle' reads the oracle's A*, which a preference "
                                       "method never receives; it is for DIT on true rewards (DITModule)")
         super().__init__(state_dim, action_dim, discrete, max_context, gamma=gamma, eta=eta, max_weight=max_weight,
                          value_epochs=value_epochs, backbone=backbone, lr=lr, weight_decay=weight_decay,
-                         center_advantages=center_advantages, advantage=advantage, normalize_inputs=normalize_inputs)
+                         center_advantages=center_advantages, advantage=advantage, normalize_inputs=normalize_inputs,
+                         lr_schedule=lr_schedule, warmup_steps=warmup_steps)
         weights = None
         sizes = {"state_dim": state_dim, "action_dim": action_dim, "discrete": discrete}
         if reward_gen_hparams is None:
