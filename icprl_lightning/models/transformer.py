@@ -86,6 +86,23 @@ def decode_attention(q: Tensor, k_t: Tensor, v: Tensor, mask: Tensor | None) -> 
     return torch.matmul(scores.softmax(-1), v)
 
 
+@torch.library.custom_op("icprl::decode_attention", mutates_args=())
+def compiled_decode_attention(q: Tensor, k_t: Tensor, v: Tensor, mask: Tensor | None) -> Tensor:
+    """``decode_attention`` as one opaque operator for ``torch.compile`` (an ``Agent(compile=True)``'s query step).
+
+    Inductor lowers a batched matmul with one query row (an act()) into an element-wise product and a sum, which
+    for heads of 8 channels compiled into a kernel slower than the two ATen matmuls; behind this operator the
+    compiled graph calls them as they are and fuses only the layers' other small operators
+    (``benchmarks/deployment_throughput.py --compile``). Eager code calls ``decode_attention`` directly (an
+    operator's dispatch would cost more than it saves there)."""
+    return decode_attention(q, k_t, v, mask)
+
+
+@compiled_decode_attention.register_fake
+def _(q: Tensor, k_t: Tensor, v: Tensor, mask: Tensor | None) -> Tensor:
+    return q.new_empty((*q.shape[:-1], v.shape[-1]))
+
+
 class SelfAttention(nn.Module):
     def __init__(self, n_embd: int, n_head: int, dropout: float) -> None:
         super().__init__()
@@ -107,7 +124,8 @@ class SelfAttention(nn.Module):
             end = past_length + t
             past[0][..., past_length:end] = k.transpose(-1, -2)
             past[1][:, :, past_length:end] = v
-            y = decode_attention(q, past[0][..., :end], past[1][:, :, :end], mask)
+            attend = compiled_decode_attention if torch.compiler.is_compiling() else decode_attention
+            y = attend(q, past[0][..., :end], past[1][:, :, :end], mask)
         else:
             y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, is_causal=causal,
                                                dropout_p=self.dropout if self.training else 0.0)

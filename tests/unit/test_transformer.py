@@ -5,7 +5,13 @@ import torch
 from icprl_lightning.contexts import ActionSpec, StepPreferenceContext
 from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.policy import InContextPolicy
-from icprl_lightning.models.transformer import ENCODE_ROWS, CausalTransformer, query_mask
+from icprl_lightning.models.transformer import (
+    ENCODE_ROWS,
+    CausalTransformer,
+    compiled_decode_attention,
+    decode_attention,
+    query_mask,
+)
 
 
 def test_query_mask():
@@ -83,3 +89,17 @@ def test_preference_token_is_invariant_to_slot_order():
     one = pol(StepPreferenceContext(s, a, b, y), obs, torch.tensor([8]))
     two = pol(StepPreferenceContext(s, b, a, 1 - y), obs, torch.tensor([8]))
     torch.testing.assert_close(one, two)
+
+
+def test_the_compiled_decode_operator_is_the_eager_attention_and_registers_for_compile():
+    """``compiled_decode_attention`` (the operator an ``Agent(compile=True)``'s graph calls) computes what
+    ``decode_attention`` does, masked or not, on cache views, and passes torch.library's checks of its schema and
+    fake (shape-only) implementation, which ``torch.compile`` traces through."""
+    torch.manual_seed(0)
+    q, k_t, v = torch.randn(3, 4, 2, 8), torch.randn(3, 4, 8, 9)[..., :7], torch.randn(3, 4, 9, 8)[:, :, :7]
+    mask = torch.rand(3, 4, 2, 7) > 0.3
+    mask[..., 0] = True
+    for m in (None, mask):
+        torch.testing.assert_close(compiled_decode_attention(q, k_t, v, m), decode_attention(q, k_t, v, m))
+        torch.library.opcheck(compiled_decode_attention, (q, k_t, v, m),
+                              test_utils=("test_schema", "test_faketensor"))
