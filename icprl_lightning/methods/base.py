@@ -140,7 +140,7 @@ class InContextModule(L.LightningModule):
         """AdamW at ``lr``, constant or on the warm-up + cosine schedule of ``methods/schedule.py``."""
         optimizer = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
         return with_schedule(optimizer, self.hparams.get("lr_schedule", "constant"),
-                             self.hparams.get("warmup_steps", 0), int(self.trainer.estimated_stepping_batches))
+                             self.hparams.get("warmup_steps", 0), lambda: self.trainer.estimated_stepping_batches)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""

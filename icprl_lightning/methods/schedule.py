@@ -15,6 +15,7 @@ is not saved, so a checkpoint holds no code).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 
@@ -30,10 +31,15 @@ def warmup_cosine_factor(step: int, warmup_steps: int, total_steps: int) -> floa
     return 0.5 * (1.0 + math.cos(math.pi * progress))
 
 
-def with_schedule(optimizer: torch.optim.Optimizer, schedule: str, warmup_steps: int, total_steps: int):
-    """What ``configure_optimizers`` returns: the optimizer alone (``constant``), or with its per-step scheduler."""
+def with_schedule(optimizer: torch.optim.Optimizer, schedule: str, warmup_steps: int,
+                  total_steps: Callable[[], int]):
+    """What ``configure_optimizers`` returns: the optimizer alone (``constant``), or with its per-step scheduler.
+
+    ``total_steps`` is called only for ``cosine``: a constant-rate module needs no trainer to build its optimizer.
+    """
     if schedule == "constant":
         return optimizer
+    total_steps = int(total_steps())
     if total_steps <= warmup_steps:
         raise ValueError(f"lr_schedule 'cosine': warmup_steps ({warmup_steps}) must be fewer than the fit's "
                          f"optimizer steps ({total_steps}: trainer.max_steps, or max_epochs × batches per epoch)")
