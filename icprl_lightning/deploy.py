@@ -55,11 +55,14 @@ class Agent:
         self.greedy = greedy
         self.use_cache = use_cache
         # torch.compile of the per-step query (one token against the cache): its small ops fused into a few
-        # kernels: 1.4-2x a small model's env-steps/s at 100 tasks, after a one-time compile per context length
-        # (benchmarks/deployment_throughput.py --compile)
+        # kernels: 1.2-1.5x a model's eager env-steps/s at 100 tasks, after a one-time compile per context length
+        # (benchmarks/deployment_throughput.py --compile; docs/results/speed/speed_deploy100.json)
         if compile and not use_cache:
             raise ValueError("compile=True compiles the cached query step: it needs use_cache=True")
-        self._compiled_query = torch.compile(policy.query, dynamic=False) if compile else None
+        # Inductor's C++ wrapper calls the graph's kernels without a Python frame per kernel: a tenth of a small
+        # model's act() (a one-time C++ build of a few seconds more)
+        self._compiled_query = (torch.compile(policy.query, dynamic=False, options={"cpp_wrapper": True})
+                                if compile else None)
         self.generator: torch.Generator | None = None
         if seed is not None:
             self.generator = torch.Generator(device=self.device).manual_seed(seed)
