@@ -59,8 +59,8 @@ class Agent:
         # (benchmarks/deployment_throughput.py --compile; docs/results/speed/speed_deploy100.json)
         if compile and not use_cache:
             raise ValueError("compile=True compiles the cached query step: it needs use_cache=True")
-        # Inductor's C++ wrapper calls the graph's kernels without a Python frame per kernel: a tenth of a small
-        # model's act() (a one-time C++ build of a few seconds more)
+        # Inductor's C++ wrapper calls the graph's kernels without a Python frame per kernel, which matters when an
+        # act() is a few dozen tiny kernels (a one-time C++ build of a few seconds more)
         self._compiled_query = (torch.compile(policy.query, dynamic=False, options={"cpp_wrapper": True})
                                 if compile else None)
         self.generator: torch.Generator | None = None
