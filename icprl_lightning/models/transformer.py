@@ -86,9 +86,9 @@ def decode_attention(q: Tensor, k_t: Tensor, v: Tensor, mask: Tensor | None) -> 
     return torch.matmul(scores.softmax(-1), v)
 
 
-def one_row_padded(attention, q: Tensor, k_t: Tensor, v: Tensor, mask: Tensor | None) -> Tensor:
-    """``attention(q, k_t, v, mask)`` for one query token (an act()) computed on two rows, the second zero, and the
-    first returned: what a compiled agent's query step runs (``Agent(compile=True)``).
+def one_row_padded(q: Tensor, k_t: Tensor, v: Tensor, mask: Tensor | None) -> Tensor:
+    """``decode_attention(q, k_t, v, mask)`` for one query token (an act()) computed on two rows, the second zero,
+    and the first returned: what a compiled agent's query step runs (``Agent(compile=True)``).
 
     Inductor lowers a CPU batched matmul with one row into an element-wise product and a sum; for heads of 8
     channels that kernel was slower than eager's two ATen matmuls (the small 4-head model ran at 9.6× DPT's
@@ -98,7 +98,7 @@ def one_row_padded(attention, q: Tensor, k_t: Tensor, v: Tensor, mask: Tensor | 
     padded = torch.cat([q, torch.zeros_like(q)], dim=-2)
     if mask is not None:
         mask = mask.expand(*mask.shape[:-2], 2, mask.shape[-1])
-    return attention(padded, k_t, v, mask)[..., :1, :]
+    return decode_attention(padded, k_t, v, mask)[..., :1, :]
 
 
 class SelfAttention(nn.Module):
@@ -122,11 +122,8 @@ class SelfAttention(nn.Module):
             end = past_length + t
             past[0][..., past_length:end] = k.transpose(-1, -2)
             past[1][:, :, past_length:end] = v
-            cached = (q, past[0][..., :end], past[1][:, :, :end], mask)
-            if t == 1 and torch.compiler.is_compiling():
-                y = one_row_padded(decode_attention, *cached)
-            else:
-                y = decode_attention(*cached)
+            attend = one_row_padded if t == 1 and torch.compiler.is_compiling() else decode_attention
+            y = attend(q, past[0][..., :end], past[1][:, :, :end], mask)
         else:
             y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask, is_causal=causal,
                                                dropout_p=self.dropout if self.training else 0.0)

@@ -99,6 +99,6 @@ def test_one_query_row_padded_to_two_is_the_one_row_attention():
     mask = torch.rand(3, 4, 1, 7) > 0.3
     mask[..., 0] = True
     for m in (None, mask):
-        out = one_row_padded(decode_attention, q, k_t, v, m)
+        out = one_row_padded(q, k_t, v, m)
         assert out.shape == (3, 4, 1, 8)
         torch.testing.assert_close(out, decode_attention(q, k_t, v, m))
