@@ -65,8 +65,10 @@ smoke: $(STAMP)
 	echo "== 3/3 held-out returns of the deployed checkpoint ($$run/evaluation.md, .json, .png) ==" && \
 	cat $$run/evaluation.md
 
+# The fast tier, the developer loop, on two pytest-xdist workers of one thread each; `make test` runs every test
+# in one process, as CI does.
 test-fast: $(STAMP)
-	WANDB_MODE=disabled $(BIN)/python -m pytest -q -m "not slow"
+	OMP_NUM_THREADS=1 WANDB_MODE=disabled $(BIN)/python -m pytest -q -n 2 -m "not slow"
 
 # make reproduce TABLE=darkroom_ipref: train 3 seeds per method and write docs/results/<TABLE>* (icprl reproduce --list)
 reproduce: $(STAMP)
