@@ -20,6 +20,7 @@ them. Its file says what ``Table`` holds; only ``title`` and ``runs`` are requir
     eval_seeds: [0, 1]                                                          # the default
     baselines: {DQN from scratch: docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json}
     figure: lambda_beta                              # a table-specific figure (figures.FIGURES)
+    ceiling: docs/results/darkroom_label_ceiling/darkroom_label_ceiling_uniform.json  # drawn on the learning curves
 
 ``overrides`` is a mapping of dotted keys or a list of them, passed in order as on a command line (a later value
 of a key wins); a list item may instead name a values-only overlay file, whose values are passed the same way, so
@@ -209,6 +210,14 @@ class _Reader:
             from icprl_lightning.reproduce.figures import FIGURES
 
             self.choice("figure", values["figure"], tuple(FIGURES))
+        if "ceiling" in data:
+            from icprl_lightning.reproduce.figures import read_ceiling
+
+            values["ceiling"] = self.file("ceiling", data["ceiling"])
+            try:
+                read_ceiling(values["ceiling"])
+            except ValueError as e:
+                self.fail("ceiling", str(e))
         return Table(**values)
 
     def runs_of(self, source: str, names: tuple[str, ...]) -> tuple[Run, ...]:

@@ -5,10 +5,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from icprl_lightning.evaluation.report import figure_title
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.reproduce.tables import Table
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 BETA, LAMBDA = "model.init_args.beta", "model.init_args.lam"
 EPSILON = "data.init_args.setting.init_args.annotator.init_args.epsilon"
@@ -73,10 +77,31 @@ def teacher_noise_figure(table: Table, out_dir: Path) -> None:
     fig.savefig(out_dir / f"{table.name}_vs_noise.png", dpi=120)
 
 
-def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -> None:
+CEILING_KEY = "return_walking_to_map_goal"  # label_ceiling.py: the Bayes-optimal reader of the labels, per quality
+
+
+def read_ceiling(path: str | Path) -> dict[str, float]:
+    """The held-out return a Bayes-optimal reader of the labels reaches, per context quality, from the JSON of
+    ``icprl analyze label-ceiling``; ``ValueError`` naming what is missing when the file is not one."""
+    try:
+        payload = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path} is not JSON ({e})") from None
+    ceiling = {q: payload[q][CEILING_KEY] for q in QUALITIES
+               if isinstance(payload, dict) and isinstance(payload.get(q), dict) and CEILING_KEY in payload[q]}
+    if not ceiling or not all(isinstance(v, int | float) for v in ceiling.values()):
+        raise ValueError(f"{path} holds no numeric {CEILING_KEY!r} for any quality ({', '.join(QUALITIES)}): "
+                         "write it with `icprl analyze label-ceiling`")
+    return ceiling
+
+
+def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -> Figure | None:
     """Held-out return vs optimizer steps, one panel per quality, one line per run (each training seed thin); a
-    second row vs training seconds (``TrainingClock``) when the fits logged them."""
+    second row vs training seconds (``TrainingClock``) when the fits logged them; with the table's ``ceiling``, the
+    Bayes-optimal reader's return of each quality as a dashed line. Returns the figure (``None``: no curves)."""
     from matplotlib.figure import Figure
+
+    ceiling = read_ceiling(table.ceiling) if table.ceiling else {}
 
     axes_keys = ("step", "train_seconds")
     found = {k for per in curves.values() for c in per.values() for p in c for k in p if k not in axes_keys}
@@ -96,6 +121,9 @@ def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -
                     if points:
                         ax.plot(*zip(*points, strict=True), color=color, alpha=0.8, marker=".",
                                 label=name if j == 0 else None)
+            if quality in ceiling:
+                ax.axhline(ceiling[quality], color="black", linestyle="--", linewidth=1,
+                           label="Bayes-optimal reader of the labels")
             ax.set_title(f"{quality} contexts", fontsize=9)
             ax.set_xlabel(x_label)
             ax.grid(alpha=0.3)
@@ -104,6 +132,7 @@ def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -
     fig.suptitle(figure_title(f"{table.title}: return during training, one line per training seed",
                               fig.get_figwidth()), fontsize=9)
     fig.savefig(path, dpi=120)
+    return fig
 
 
 FIGURES = {"lambda_beta": lambda_beta_figure, "teacher_noise": teacher_noise_figure}

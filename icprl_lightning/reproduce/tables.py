@@ -98,6 +98,7 @@ class Table:
     baselines: tuple[str, ...] = ()  # NAME=JSON of ``icprl evaluate --baseline``
     budget: str = ""  # what one run costs here, for --list
     figure: str = ""  # a table-specific figure made from the evaluations (``FIGURES``)
+    ceiling: str = ""  # ``icprl analyze label-ceiling``'s JSON for the runs' data, drawn on the learning curves
     runs_from: str = ""  # the table whose runs (and fit records) these are; "" for its own
 
 

@@ -423,3 +423,23 @@ def test_the_tables_that_borrow_runs_deploy_the_runs_their_results_came_from(tab
         assert all(isinstance(e, OnlineEvaluation) for e in table.evaluations) != (table.name == "metaworld_heldout")
         for evaluation in table.evaluations:
             assert (REPO / "docs/results" / table.name / f"{table.name}{evaluation.suffix}.json").exists(), evaluation
+
+
+def test_the_learning_curves_draw_the_tables_label_ceiling_per_quality(tables, tmp_path):
+    """A table's ``ceiling`` (``icprl analyze label-ceiling``'s JSON) is a dashed line on each quality's panels at
+    the Bayes-optimal reader's return, so a reader sees how far the fits are from what the labels allow."""
+    from icprl_lightning.reproduce.figures import curve_figure, read_ceiling
+
+    table = tables["darkroom_label_schedule"]
+    assert table.ceiling
+    ceiling = read_ceiling(table.ceiling)
+    curves = json.loads((REPO / "docs" / "results" / table.name / f"{table.name}_reproduce.json").read_text())
+    fig = curve_figure(table, curves["learning_curves"], tmp_path / "curve.png")
+    assert (tmp_path / "curve.png").is_file()
+    panels = [ax for ax in fig.axes if ax.get_title()]
+    assert len(panels) == 2 * 3  # steps and training seconds × low, medium, high
+    for ax in panels:
+        quality = ax.get_title().removesuffix(" contexts")
+        dashed = [line for line in ax.get_lines() if line.get_linestyle() == "--"]
+        assert [line.get_ydata()[0] for line in dashed] == [ceiling[quality]], ax.get_title()
+    assert len(set(ceiling.values())) == 3  # the qualities' ceilings differ, so a line on the wrong panel fails
