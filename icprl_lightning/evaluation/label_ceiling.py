@@ -30,6 +30,8 @@ from icprl_lightning.families.darkroom.family import DarkRoomFamily
 from icprl_lightning.families.darkroom.oracle import optimal_advantage, optimal_value
 from icprl_lightning.io import write_json_atomic
 
+CEILING = "return_walking_to_map_goal"  # the key of the ceiling: the return of walking to the posterior's mode
+
 
 def goal_posterior(family: DarkRoomFamily, states: np.ndarray, first: np.ndarray, second: np.ndarray,
                    preferred: np.ndarray, temperature: float) -> tuple[np.ndarray, np.ndarray]:
@@ -82,7 +84,7 @@ def label_ceiling(configs: Sequence[str | Path], seed: int = 0) -> dict[str, Any
         walk_to_map = np.where(best == true, optimal, 0.0)  # a wrong cell earns only what it passes through: ≈ 0
         out[q] = {"map_is_true_goal": float((best == true).mean()),
                   "posterior_on_true_goal": float(np.exp(logp[np.arange(len(true)), true]).mean()),
-                  "return_walking_to_map_goal": float(walk_to_map.mean()), "optimal_return": float(optimal.mean()),
+                  CEILING: float(walk_to_map.mean()), "optimal_return": float(optimal.mean()),
                   "contexts": int(len(true))}
     return out
 

@@ -77,20 +77,19 @@ def teacher_noise_figure(table: Table, out_dir: Path) -> None:
     fig.savefig(out_dir / f"{table.name}_vs_noise.png", dpi=120)
 
 
-CEILING_KEY = "return_walking_to_map_goal"  # label_ceiling.py: the Bayes-optimal reader of the labels, per quality
-
-
 def read_ceiling(path: str | Path) -> dict[str, float]:
     """The held-out return a Bayes-optimal reader of the labels reaches, per context quality, from the JSON of
     ``icprl analyze label-ceiling``; ``ValueError`` naming what is missing when the file is not one."""
+    from icprl_lightning.evaluation.label_ceiling import CEILING
+
     try:
         payload = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
         raise ValueError(f"{path} is not JSON ({e})") from None
-    ceiling = {q: payload[q][CEILING_KEY] for q in QUALITIES
-               if isinstance(payload, dict) and isinstance(payload.get(q), dict) and CEILING_KEY in payload[q]}
+    ceiling = {q: payload[q][CEILING] for q in QUALITIES
+               if isinstance(payload, dict) and isinstance(payload.get(q), dict) and CEILING in payload[q]}
     if not ceiling or not all(isinstance(v, int | float) for v in ceiling.values()):
-        raise ValueError(f"{path} holds no numeric {CEILING_KEY!r} for any quality ({', '.join(QUALITIES)}): "
+        raise ValueError(f"{path} holds no numeric {CEILING!r} for any quality ({', '.join(QUALITIES)}): "
                          "write it with `icprl analyze label-ceiling`")
     return ceiling
 
