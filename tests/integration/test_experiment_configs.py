@@ -191,6 +191,8 @@ GOOD_RUN = "  - {name: A, configs: [configs/icpo_darkroom.yaml]}\n"
     (f"title: t\nruns:\n{GOOD_RUN}contexts: [own, flipped]\n", "contexts[1]", "must be one of own, "),
     (f"title: t\nruns:\n{GOOD_RUN}figure: violin\n", "figure", "must be one of lambda_beta, teacher_noise"),
     (f"title: t\nruns:\n{GOOD_RUN}ceiling: results/nope.json\n", "ceiling", "results/nope.json does not exist"),
+    (f"title: t\nruns:\n{GOOD_RUN}ceiling: configs/icpo_darkroom.yaml\n", "ceiling",
+     "configs/icpo_darkroom.yaml is not JSON"),
     (f"title: t\nruns:\n{GOOD_RUN}ceiling: docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json\n", "ceiling",
      "holds no numeric 'return_walking_to_map_goal' for any quality"),
     ("title: t\nruns_from: nowhere\nruns: [A]\n", "runs_from", "no table 'nowhere'"),
