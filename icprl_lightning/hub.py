@@ -15,9 +15,9 @@ and only then renames it into place (``io.staged_directory``), so an interrupted
 half-written and every exported directory has loaded once.
 
 ``load_model_dir`` refuses, with a ``ValueError`` (a missing file: ``FileNotFoundError``) naming the file: a
-config.json naming a class outside ``checkpoints.METHODS`` (never imported), a model.safetensors whose SHA-256
-differs from config.json's, hyperparameters or tensors that do not match the checkpoint checksum, non-finite
-weights (all checked before the model is built), and tensors whose names or shapes differ from those of the
+config.json naming a class that is not a registered method (``registry.py``; never imported), a model.safetensors
+whose SHA-256 differs from config.json's, hyperparameters or tensors that do not match the checkpoint checksum, non-
+finite weights (all checked before the model is built), and tensors whose names or shapes differ from those of the
 model the hyperparameters build (checked before any weight is loaded into it). The weights are read by
 ``safetensors`` (a JSON header and raw bytes), never unpickled.
 
@@ -41,6 +41,7 @@ import torch
 
 from icprl_lightning import checkpoints
 from icprl_lightning.io import sha256, staged_directory
+from icprl_lightning.registry import method_class, method_names, short_names
 
 WEIGHTS = "model.safetensors"
 CONFIG = "config.json"
@@ -114,10 +115,9 @@ def load_model_dir(path: str | Path, map_location: str | torch.device = "cpu"):
     config = read_config(directory)
     config_file, weights = directory / CONFIG, directory / WEIGHTS
     method = config["method"]
-    if method not in checkpoints.METHODS:  # checked before anything is imported or read
-        names = ", ".join(c.rpartition(".")[2] for c in checkpoints.METHODS)
-        raise ValueError(f"{config_file} names class {method!r}, which is not one of icprl_lightning's methods "
-                         f"({names}); refusing to import it")
+    if method not in method_names():  # checked before anything is imported or read
+        raise ValueError(f"{config_file} names class {method!r}, which is not a registered method "
+                         f"({short_names()}); refusing to import it")
     if not weights.is_file():
         raise FileNotFoundError(f"{directory} has no {WEIGHTS}")
     if sha256(weights) != config["weights_sha256"]:
@@ -148,7 +148,7 @@ def load_model(source: str | Path, map_location: str | torch.device = "cpu"):
 def _build(ckpt: dict[str, Any], config_file: Path):
     """The allow-listed class built from the hyperparameters, as ``checkpoints.build_module`` builds it (only the
     class's own arguments; flat backbone sizes gathered), with its initial weights."""
-    cls = checkpoints.method_classes()[ckpt[checkpoints.CLASS_KEY]]
+    cls = method_class(ckpt[checkpoints.CLASS_KEY])
     accepted = inspect.signature(cls.__init__).parameters
     hparams = {k: v for k, v in checkpoints.hyperparameters(ckpt).items() if k in accepted and k != "self"}
     try:

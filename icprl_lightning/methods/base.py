@@ -83,6 +83,11 @@ class InContextModule(L.LightningModule):
         check_choice(owner, "layout", layout, LAYOUTS)
         super().__init__()
         self.backbone = save_backbone(self, backbone)
+        # kept on the module, not read back from hparams: a subclass's constructor (a user's method) need not
+        # re-declare every argument of this one for save_hyperparameters to record it
+        self.optimizer_settings = {"lr": lr, "weight_decay": weight_decay, "lr_schedule": lr_schedule,
+                                   "warmup_steps": warmup_steps}
+        self.queries_per_context = queries_per_context
         self.context_kind = context_kind
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.policy = InContextPolicy(context_kind, state_dim, self.action_spec, self.backbone, max_context,
@@ -114,7 +119,7 @@ class InContextModule(L.LightningModule):
         and the sequence is H + k tokens instead of 2H (``benchmarks/training_throughput.py`` measures the
         gain). Validation always scores all H, so ``val/loss`` does not depend on k.
         """
-        k = self.hparams.get("queries_per_context")
+        k = self.queries_per_context
         if k is None or k >= length or not self.training:
             return torch.arange(length, device=device)
         return torch.randperm(length, device=device)[:k].sort().values
@@ -138,9 +143,10 @@ class InContextModule(L.LightningModule):
 
     def configure_optimizers(self):
         """AdamW at ``lr``, constant or on the warm-up + cosine schedule of ``methods/schedule.py``."""
-        optimizer = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
-        return with_schedule(optimizer, self.hparams.get("lr_schedule", "constant"),
-                             self.hparams.get("warmup_steps", 0), lambda: self.trainer.estimated_stepping_batches)
+        settings = self.optimizer_settings
+        optimizer = torch.optim.AdamW(self.parameters(), lr=settings["lr"], weight_decay=settings["weight_decay"])
+        return with_schedule(optimizer, settings["lr_schedule"], settings["warmup_steps"],
+                             lambda: self.trainer.estimated_stepping_batches)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""

@@ -18,21 +18,14 @@ import torch
 from factories import save_untrained, tiny_darkroom_args
 
 from icprl_lightning import StepPreferenceContext, load_agent
-from icprl_lightning.checkpoints import (
-    CHECKSUM_KEY,
-    CLASS_KEY,
-    METHODS,
-    SEAL_KEY,
-    checksum,
-    method_classes,
-    seal,
-)
+from icprl_lightning.checkpoints import CHECKSUM_KEY, CLASS_KEY, SEAL_KEY, checksum, seal
 from icprl_lightning.checkpoints import main as checkpoints_main
 from icprl_lightning.cli import main
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
 from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.registry import BUILTIN_METHODS, class_path, method_class
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=10)
@@ -155,7 +148,7 @@ def _bad_files(good: Path, d: Path) -> dict[str, tuple[Path, type[Exception], st
     (d / "a_directory.ckpt").mkdir(exist_ok=True)
     readable, foreign = "not a readable checkpoint", "not an icprl_lightning checkpoint"
     damaged = "is damaged: its weights or hyperparameters do not match the checksum"
-    not_allowed = "which is not one of icprl_lightning's methods"
+    not_allowed = "which is not a registered method"
     return {
         "missing": (d / "missing.ckpt", FileNotFoundError, "No checkpoint at"),
         "directory": (d / "a_directory.ckpt", ValueError, "is a directory, not a checkpoint file"),
@@ -210,10 +203,11 @@ def bad(saved, tmp_path_factory):
     return files
 
 
-def test_allow_list_is_the_packages_methods():
-    assert set(method_classes()) == set(METHODS)
+def test_the_builtin_methods_are_the_packages_lightning_modules():
+    classes = [method_class(name) for name in BUILTIN_METHODS]
+    assert [class_path(c) for c in classes] == list(BUILTIN_METHODS)
     assert all(issubclass(c, L.LightningModule) and c.__module__.startswith("icprl_lightning.methods.")
-               for c in method_classes().values())
+               for c in classes)
 
 
 def test_saved_checksum_covers_class_hparams_and_weights(saved):

@@ -23,15 +23,15 @@ PACKAGE = REPO / "icprl_lightning"
 # lowest first; a module's layer is the first entry its dotted name starts with
 LAYERS = [
     ("contexts", "preferences", "io", "metrics", "validation",   # ground: shared vocabulary, argument checks,
-     "progress", "data_contract", "samples"),                     # progress lines, what a DataModule serves,
-                                                                  # typed training samples
+     "progress", "data_contract", "samples", "registry"),         # progress lines, what a DataModule serves,
+                                                                  # typed training samples, the method registry
     ("sb3",),                                       # SB3 agents evaluated while they train (oracle, baselines)
     ("families",),                                  # task families, their envs and oracles
     ("annotators",),                                # who labels a pair (sees the oracle's utilities)
     ("data",),                                      # settings (generators), store, DataModules
     ("models",),                                    # plain nn.Modules
-    ("deploy", "checkpoints", "online", "hub"),     # Agent / load_agent; safe checkpoint files (methods by an
-                                                    # allow-list of names, imported by importlib, not statically)
+    ("deploy", "checkpoints", "online", "hub"),     # Agent / load_agent; safe checkpoint files (methods by the
+                                                    # registry's names, imported only when registered)
     ("methods",),                                   # LightningModules
     ("evaluation",),                                # rollouts and duels through the Agent
     ("callbacks",),
