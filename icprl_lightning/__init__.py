@@ -9,6 +9,7 @@ works as with eager imports.
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # what type checkers and IDEs see; at run time ``__getattr__`` imports on demand
@@ -22,7 +23,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time ``__getattr__`
     from icprl_lightning.online import OnlineAgent
     from icprl_lightning.registry import register_method
 
-__version__ = "0.1.0"
+__version__ = importlib.metadata.version("icprl_lightning")  # pyproject.toml's, as installed
 # public name -> the module that defines it
 _EXPORTS = {
     "Agent": "icprl_lightning.deploy",

@@ -36,7 +36,6 @@ as any other read; the stamp only vouches that the file has not changed since).
 
 from __future__ import annotations
 
-import argparse
 import atexit
 import hashlib
 import inspect
@@ -44,7 +43,6 @@ import json
 import os
 import re
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -358,32 +356,3 @@ def stamp_file(path: str | Path) -> str:
         finally:
             tmp.unlink(missing_ok=True)
     return ckpt[CHECKSUM_KEY]
-
-
-def main(args: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="icprl checkpoint", description=__doc__.split("\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("stamp", help="add the checksum to trusted checkpoints saved before it existed").add_argument(
-        "paths", nargs="+")
-    check = sub.add_parser("verify", help="check checkpoints (exit 1 if any fails)")
-    check.add_argument("paths", nargs="+")
-    check.add_argument("--resumable", action="store_true",
-                       help="also require the seal over the training state that a resume restores")
-    parsed = parser.parse_args(args)
-    failed = False
-    for path in parsed.paths:
-        try:
-            if parsed.command == "stamp":
-                print(f"{path}: {CHECKSUM_KEY} {stamp_file(path)}")
-            else:
-                build_module(verify(load_raw(path), path, require_seal=parsed.resumable), path)
-                print(f"{path}: ok")
-        except (ValueError, FileNotFoundError) as e:
-            print(f"error: {e}", file=sys.stderr)
-            failed = True
-    if failed:
-        raise SystemExit(1)
-
-
-if __name__ == "__main__":
-    main()

@@ -27,7 +27,6 @@ Shipped models are such directories under ``icprl_lightning/pretrained/<name>/``
 
 from __future__ import annotations
 
-import argparse
 import inspect
 import json
 import math
@@ -233,9 +232,9 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
     setting and seed. ``command``: the command that trained it. ``name``: the model's name (default: the
     directory's). An existing ``out_dir`` is replaced only with ``overwrite`` and only if it is a model directory.
     """
-    from safetensors.torch import save_file
+    from importlib.metadata import version
 
-    import icprl_lightning
+    from safetensors.torch import save_file
 
     checkpoint, out_dir = Path(checkpoint), Path(out_dir)
     ckpt = checkpoints.read_checkpoint(checkpoint)
@@ -256,7 +255,7 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
               "seed": run.get("seed"), "training_command": command, "training_config": run.get("training_config"),
               "epoch": ckpt.get("epoch"), "global_step": ckpt.get("global_step"),
               "parameters": sum(p.numel() for p in module.parameters()),
-              "icprl_lightning_version": icprl_lightning.__version__, "exported_from": checkpoint.name,
+              "icprl_lightning_version": version("icprl_lightning"), "exported_from": checkpoint.name,
               "results": RESULTS if evaluation is not None else None}
     with staged_directory(out_dir, marker=CONFIG, schema_version=SCHEMA_VERSION, what=WHAT,
                           overwrite=overwrite) as tmp:
@@ -393,18 +392,3 @@ def model_card(config: dict[str, Any], module: torch.nn.Module, evaluation: dict
 
 
 # ---- icprl export --------------------------------------------------------------------------------------------
-
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="icprl export", description=__doc__.split("\n")[0])
-    parser.add_argument("checkpoint", help="a .ckpt of any icprl_lightning method")
-    parser.add_argument("--out", required=True, help="the model directory to write")
-    parser.add_argument("--results", help="an `icprl evaluate` JSON of this checkpoint, shown in the model card")
-    parser.add_argument("--run-config", help="the run's config.yaml (default: the one beside checkpoints/)")
-    parser.add_argument("--command", help="the command that trained the checkpoint, recorded in config.json")
-    parser.add_argument("--name", help="the model's name (default: the directory's)")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing model directory")
-    args = parser.parse_args(argv)
-    out = export_model(args.checkpoint, args.out, results=args.results, run_config=args.run_config,
-                       command=args.command, name=args.name, overwrite=args.overwrite)
-    size = sum(f.stat().st_size for f in out.iterdir())
-    print(f"wrote {out} ({size / 1024:.1f} KiB): load it with load_agent({str(out)!r})")

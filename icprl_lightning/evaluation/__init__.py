@@ -1,16 +1,15 @@
 """Evaluation on held-out tasks, used alike by the callbacks and by ``icprl evaluate``.
 
-Every evaluation deploys through the public ``Agent`` (``icprl_lightning.deploy``) and reports the paper's
-metrics: the latent return of in-context episodes on held-out tasks (``rollout``), and the weak regret
-of dueling-bandit duels vs context size (``duels``; paper, appendix "Dueling Bandit Experiments").
-``diagnostics`` changes a context in one stated way (flipped or random labels, another task's
-context) to show what a policy reads from it. ``report`` renders both as tables, markdown, JSON and
-figures; ``command`` is the ``icprl evaluate`` CLI. ``online_mdp`` and ``online_bandit`` deploy an agent that
-asks for comparisons as it acts (``icprl evaluate online``, ``online_command.evaluate_online``). The measurements
-of ``icprl analyze`` read a model's or a dataset's insides: ``reward_quality``, ``reward_bayes``,
-``icrg_labels`` (the reward stage, over ``trajectory_data``), ``dit_advantages``, ``dit_weights`` and
-``label_ceiling``.
-The suites come from ``icprl_lightning.data.suites``: evaluation imports data, never the reverse.
+Every evaluation deploys through the public ``Agent`` (``icprl_lightning.deploy``) and reports the paper's metrics:
+the latent return of in-context episodes on held-out tasks (``rollout``), and the weak regret of dueling-bandit
+duels vs context size (``duels``; paper, appendix "Dueling Bandit Experiments"). ``diagnostics`` changes a context
+in one stated way (flipped or random labels, another task's context) to show what a policy reads from it.
+``report`` renders both as tables, markdown, JSON and figures; ``command`` builds the tables of ``icprl evaluate``
+(its command line: ``commands/evaluate.py``). ``online_mdp`` and ``online_bandit`` deploy an agent that asks for
+comparisons as it acts (``icprl evaluate online``, ``online_command.evaluate_online``). The measurements of ``icprl
+analyze`` read a model's or a dataset's insides: ``reward_quality``, ``reward_bayes``, ``icrg_labels`` (the reward
+stage, over ``trajectory_data``), ``dit_advantages``, ``dit_weights`` and ``label_ceiling``. The suites come from
+``icprl_lightning.data.suites``: evaluation imports data, never the reverse.
 """
 
 from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, diagnose, diagnose_suite

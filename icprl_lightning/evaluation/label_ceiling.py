@@ -16,8 +16,6 @@ Privileged: it reads the oracle, for analysis only; it is not a method.
 
 from __future__ import annotations
 
-import argparse
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -28,7 +26,6 @@ from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.families.darkroom.family import DarkRoomFamily
 from icprl_lightning.families.darkroom.oracle import optimal_advantage, optimal_value
-from icprl_lightning.io import write_json_atomic
 
 CEILING = "return_walking_to_map_goal"  # the key of the ceiling: the return of walking to the posterior's mode
 
@@ -86,18 +83,4 @@ def label_ceiling(configs: Sequence[str | Path], seed: int = 0) -> dict[str, Any
                   "posterior_on_true_goal": float(np.exp(logp[np.arange(len(true)), true]).mean()),
                   CEILING: float(walk_to_map.mean()), "optimal_return": float(optimal.mean()),
                   "contexts": int(len(true))}
-    return out
-
-
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze label-ceiling", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", action="append", required=True,
-                        help="a DarkRoom I-PRL config (repeat to stack overlays)")
-    parser.add_argument("--json", type=Path, help="also write the result here")
-    args = parser.parse_args(argv)
-    out = label_ceiling(args.config)
-    if args.json is not None:
-        write_json_atomic(args.json, out)
-    print(json.dumps(out, indent=2))
     return out

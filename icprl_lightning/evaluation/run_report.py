@@ -19,12 +19,9 @@ with matplotlib's ``Figure`` (Agg; no display or server).
 
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import re
-import sys
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -222,27 +219,3 @@ def report(run: Path, figure: Path | None, console: Console) -> Path | None:
         curves_figure(curves, figure, str(run))
         console.print(f"figure: {figure}")
     return figure
-
-
-def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="icprl report", description="A run's learning curves and last held-out "
-                                     "results, from its metrics.csv; draws the curves into a PNG.")
-    parser.add_argument("run", type=Path, help="the run directory `icprl fit` printed (or a metrics.csv)")
-    parser.add_argument("--figure", type=Path, default=None,
-                        help=f"where to write the PNG (default: <run>/{FIGURE_NAME})")
-    parser.add_argument("--no-figure", action="store_true", help="print the report only")
-    args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
-    run_dir = args.run.parent if args.run.is_file() else args.run
-    figure = None if args.no_figure else (args.figure or run_dir / FIGURE_NAME)
-    console = Console()
-    if not console.is_terminal:
-        console.width = 160  # a log file or a pipe: rows unwrapped
-    try:
-        report(args.run, figure, console)
-    except (ValueError, OSError) as e:
-        sys.stderr.write(f"icprl report: error: {e}\n")
-        raise SystemExit(2) from None
-
-
-if __name__ == "__main__":
-    main()

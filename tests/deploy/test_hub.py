@@ -17,7 +17,7 @@ from safetensors.torch import load_file, save_file
 
 from icprl_lightning import StepPreferenceContext, TrajectoryPreferenceContext, load_agent
 from icprl_lightning.checkpoints import CHECKSUM_KEY, checksum
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
 from icprl_lightning.evaluation.duels import seed_mean_curves
 from icprl_lightning.hub import (
     CARD,

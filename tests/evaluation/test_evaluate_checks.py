@@ -12,10 +12,10 @@ import torch
 import yaml
 from factories import REPO, bandit_data
 
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
+from icprl_lightning.commands.evaluate import main
 from icprl_lightning.data import PreferenceDataModule
 from icprl_lightning.evaluation import command
-from icprl_lightning.evaluation.command import main
 from icprl_lightning.evaluation.pairing import run_datamodule
 from icprl_lightning.evaluation.report import aligned_tables
 from icprl_lightning.methods.dpt import DPTModule

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
 from icprl_lightning.evaluation.label_ceiling import goal_posterior
 from icprl_lightning.families.darkroom.family import DarkRoomFamily
 from icprl_lightning.families.darkroom.oracle import optimal_advantage

@@ -14,7 +14,7 @@ import yaml
 from factories import save_untrained
 
 from icprl_lightning.annotators import BradleyTerryAnnotator
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.evaluation import online_bandit, online_mdp
 from icprl_lightning.evaluation.online_command import evaluate_online

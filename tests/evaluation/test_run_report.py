@@ -19,8 +19,8 @@ from icprl_lightning import progress
 from icprl_lightning.callbacks.progress import TrainingProgress
 from icprl_lightning.callbacks.run_directory import RUN_DIR_ATTR
 from icprl_lightning.callbacks.run_logs import CSVMetrics, wandb_in_run_directory
-from icprl_lightning.cli import run_cli
-from icprl_lightning.evaluation.run_report import main as report_main
+from icprl_lightning.commands import run_cli
+from icprl_lightning.commands.report import main as report_main
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = [*TINY_DATA, *TINY_MODEL, "--trainer.max_epochs", "2", "--trainer.limit_train_batches", "4",

@@ -190,7 +190,7 @@ def test_best_checkpoint_is_restored_and_greedy_table_matches_predict():
 
 
 def test_dqn_from_scratch_command_tiny_budget(tmp_path):
-    from icprl_lightning.cli import main
+    from icprl_lightning.commands import main
 
     main(["baseline", "dqn", "--episodes", "3", "--n-goals", "2", "--eval-every", "1", "--eval-episodes", "2",
           "--test-episodes", "3", "--out", str(tmp_path / "dqn.json")])
@@ -208,7 +208,7 @@ def test_dqn_from_scratch_command_tiny_budget(tmp_path):
 @pytest.mark.slow
 def test_sac_oracle_commands_train_then_export_per_task(tmp_path):
     """``icprl oracle train`` on one goal (the paper's per-task variant), then ``icprl oracle export`` of its run."""
-    from icprl_lightning.cli import main
+    from icprl_lightning.commands import main
     from icprl_lightning.families.metaworld_reach.sac_weights import ExportedSAC
 
     out = tmp_path / "o"

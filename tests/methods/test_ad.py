@@ -9,7 +9,7 @@ import torch
 from factories import REPO, save_untrained
 
 from icprl_lightning import load_agent
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 from icprl_lightning.contexts import RewardTrajectoryContext
 from icprl_lightning.data.learning_histories import LearningHistoryDataModule
 from icprl_lightning.data.settings import RewardTrajectories

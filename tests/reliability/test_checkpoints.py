@@ -19,8 +19,8 @@ from factories import save_untrained, tiny_darkroom_args
 
 from icprl_lightning import StepPreferenceContext, load_agent
 from icprl_lightning.checkpoints import CHECKSUM_KEY, CLASS_KEY, SEAL_KEY, checksum, seal
-from icprl_lightning.checkpoints import main as checkpoints_main
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
+from icprl_lightning.commands.checkpoint import main as checkpoints_main
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
@@ -170,7 +170,7 @@ def _bad_files(good: Path, d: Path) -> dict[str, tuple[Path, type[Exception], st
         "class_os_system": (_edited(good, d / "os_system.ckpt", lambda c: c.update({CLASS_KEY: "os.system"})),
                             ValueError, not_allowed),
         "class_other_module": (_edited(good, d / "cli.ckpt",
-                                       lambda c: c.update({CLASS_KEY: "icprl_lightning.cli.ICPRLCLI"})),
+                                       lambda c: c.update({CLASS_KEY: "icprl_lightning.commands.ICPRLCLI"})),
                                ValueError, not_allowed),
         "hparams_class_path": (_edited(good, d / "hp_class.ckpt",
                                        lambda c: c["hyper_parameters"].update(_class_path="os.system")),

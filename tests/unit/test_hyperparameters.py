@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 from icprl_lightning.data import PreferenceDataModule
 from icprl_lightning.data.settings import (
     BanditDuels,

@@ -27,10 +27,8 @@ Export (from a training run's directory; ``--targets`` are the behavior policies
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
-import sys
 import zipfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -290,23 +288,3 @@ class ExportedSAC:
         with torch.no_grad():
             q = self.critic(o.expand(*a.shape[:-1], OBS_DIM), a.clamp(-1.0, 1.0))
         return q.numpy().astype(np.float64) / self.reward_scale
-
-
-def main(args: Sequence[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(prog="icprl oracle export", description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_dir", type=Path, help="a training run of `icprl oracle train`")
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--targets", type=float, nargs="+", default=list(DEFAULT_TARGETS))
-    parser.add_argument("--overwrite", action="store_true")
-    ns = parser.parse_args(args)
-    out = export_sac_oracle(ns.run_dir, ns.out, ns.targets, ns.overwrite)
-    oracle = ExportedSAC(out)
-    for level in oracle.levels:
-        p = oracle.policy_info(level)
-        print(f"level {level}: step {p['step']}, eval return {p['eval_return']:.2f}, success {p['eval_success']:.2f}, "
-              f"normalized {p['normalized_return']:.2f}", file=sys.stderr)
-    return out
-
-
-if __name__ == "__main__":
-    main()

@@ -1,4 +1,5 @@
-"""The LightningCLI behind ``icprl fit | validate | test | predict | generate`` (``cli.py`` dispatches to it).
+"""The LightningCLI behind ``icprl fit | validate | test | predict | generate`` (``commands/__init__.py`` dispatches
+to it).
 
 Model and data are chosen by ``class_path`` / ``init_args`` (subclass mode). The environment sizes are
 written once, by the DataModule, and linked into the model. The resolved config is saved beside the run's

@@ -1,25 +1,27 @@
-"""The ``icprl`` command: the one front door for everything a user runs.
+"""The commands room: every subcommand of ``icprl``, one dispatch table (``SUBCOMMANDS``, ``GROUPS``) and one file per
+program in this folder. Library modules hold no ``main()`` and import no argparse; each program here parses its
+options and calls the library.
 
     icprl fit --config configs/icpo_darkroom.yaml [--model.init_args.lr 1e-3] [--print_config]
     icprl fit --config configs/icpo_darkroom.yaml --config configs/paper/icpo_darkroom.yaml   # an overlay
     icprl validate --config configs/icpo_darkroom.yaml --ckpt_path runs/.../last.ckpt
     icprl generate --config configs/icpo_darkroom.yaml [--data.init_args.overwrite true]
-    icprl evaluate --run NAME=CONFIG:CKPT [...]                        (evaluation/command.py)
+    icprl evaluate --run NAME=CONFIG:CKPT [...]                                   (evaluate.py)
     icprl evaluate --run NAME=CONFIG:CKPT --data configs/eval/reach_fresh_goals.yaml   (other held-out tasks)
-    icprl evaluate online --config CONFIG --ckpt CKPT [...]            (evaluation/online_command.py)
-    icprl evaluate ad --run NAME=CONFIG:CKPT --episodes 20 [...]       (evaluation/ad_command.py)
-    icprl import arrays.npz --out data/mine --kind step_preference --n-actions 5   (data/importer.py)
+    icprl evaluate online --config CONFIG --ckpt CKPT [...]                       (evaluate_online.py)
+    icprl evaluate ad --run NAME=CONFIG:CKPT --episodes 20 [...]                  (evaluate_ad.py)
+    icprl import arrays.npz --out data/mine --kind step_preference --n-actions 5  (import_data.py)
     icprl import exports/ipref_hf --format hf --out data/mine       (also parquet, minari, trl, bpref)
-    icprl export-data data/<dataset> --format hf|parquet|minari --out DIR          (data/interop/)
-    icprl export runs/.../last.ckpt --out DIR     (a Hugging Face-style model directory, hub.py)
-    icprl report runs/icprl/<run id>                                   (evaluation/run_report.py)
-    icprl checkpoint verify|stamp PATH ...                             (checkpoints.py)
-    icprl oracle train|export ...                 (families/metaworld_reach/sac.py, sac_weights.py)
-    icprl baseline sac|dqn ...                                         (baselines/)
-    icprl analyze NAME ...                        (evaluation/<name>.py, data/checksums.py)
+    icprl export-data data/<dataset> --format hf|parquet|minari --out DIR         (export_data.py)
+    icprl export runs/.../last.ckpt --out DIR     (a Hugging Face-style model directory, export.py)
+    icprl report runs/icprl/<run id>                                              (report.py)
+    icprl checkpoint verify|stamp PATH ...                                        (checkpoint.py)
+    icprl oracle train|export ...                                                 (oracle_*.py)
+    icprl baseline sac|dqn|tune-bandit ...                                        (baseline_*.py)
+    icprl analyze NAME ...                                                        (analyze_*.py)
 
-``fit`` / ``validate`` / ``test`` / ``predict`` / ``generate`` are a LightningCLI (``trainer_cli.py``). The
-other subcommands are plain argparse programs, each a ``main(argv)`` in its own module; ``oracle``,
+``fit`` / ``validate`` / ``test`` / ``predict`` / ``generate`` are a LightningCLI (``trainer.py``). The
+other subcommands are plain argparse programs, each a ``main(argv)`` in its own file; ``oracle``,
 ``baseline`` and ``analyze`` are groups whose second word picks the program (``GROUPS``). This module imports
 none of them until one is asked for, so ``icprl --help`` answers without loading torch or Lightning.
 
@@ -40,7 +42,7 @@ import os
 import sys
 from typing import NoReturn
 
-# name -> (module, function, one line of help); an empty module means the LightningCLI (``trainer_cli.py``) or,
+# name -> (module, function, one line of help); an empty module means the LightningCLI (``commands/trainer.py``) or,
 # for a name of GROUPS, the program its second word names
 SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
     "fit": ("", "", "train a method (generates its dataset first if missing)"),
@@ -48,17 +50,17 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
     "test": ("", "", "one test epoch of a checkpoint"),
     "predict": ("", "", "predictions of a checkpoint"),
     "generate": ("", "", "only build a config's dataset"),
-    "evaluate": ("icprl_lightning.evaluation.command", "main",
+    "evaluate": ("icprl_lightning.commands.evaluate", "main",
                  "deploy checkpoints on held-out tasks, with the context diagnostics"),
-    "reproduce": ("icprl_lightning.reproduce", "main", "train and evaluate every run of a results table"),
-    "import": ("icprl_lightning.data.importer", "main",
+    "reproduce": ("icprl_lightning.commands.reproduce", "main", "train and evaluate every run of a results table"),
+    "import": ("icprl_lightning.commands.import_data", "main",
                "import recorded preference data (npz, HF datasets, Parquet, Minari, TRL rows, B-Pref labels)"),
-    "export-data": ("icprl_lightning.data.interop.command", "main",
+    "export-data": ("icprl_lightning.commands.export_data", "main",
                     "write a dataset as Hugging Face datasets (Arrow), Parquet or Minari"),
-    "report": ("icprl_lightning.evaluation.run_report", "main",
+    "report": ("icprl_lightning.commands.report", "main",
                "a run's learning curves and last held-out table, from its directory, no server needed"),
-    "checkpoint": ("icprl_lightning.checkpoints", "main", "verify checkpoints, or stamp trusted old ones"),
-    "export": ("icprl_lightning.hub", "main", "write a checkpoint as a Hugging Face-style model directory"),
+    "checkpoint": ("icprl_lightning.commands.checkpoint", "main", "verify checkpoints, or stamp trusted old ones"),
+    "export": ("icprl_lightning.commands.export", "main", "write a checkpoint as a Hugging Face-style model directory"),
     "oracle": ("", "", "train the Meta-World Reach SAC oracle, or export its weights for data generation"),
     "baseline": ("", "", "RL from scratch per held-out task (SAC, DQN); tuning of the dueling-bandit baselines"),
     "analyze": ("", "", "measurements beside the tables: reward models, DIT's advantages, label ceiling, checksums"),
@@ -66,33 +68,33 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
 # group -> verb -> (module, function, one line of help)
 GROUPS: dict[str, dict[str, tuple[str, str, str]]] = {
     "oracle": {
-        "train": ("icprl_lightning.families.metaworld_reach.sac", "main",
+        "train": ("icprl_lightning.commands.oracle_train", "main",
                   "train one goal-conditioned SB3 SAC on Reach goals; pick its behavior checkpoints"),
-        "export": ("icprl_lightning.families.metaworld_reach.sac_weights", "main",
+        "export": ("icprl_lightning.commands.oracle_export", "main",
                    "write a training run's weights as a checksummed, pickle-free oracle directory"),
     },
     "baseline": {
-        "sac": ("icprl_lightning.baselines.sac_from_scratch", "main",
+        "sac": ("icprl_lightning.commands.baseline_sac", "main",
                 "SB3 SAC from scratch on each held-out Meta-World Reach goal"),
-        "dqn": ("icprl_lightning.baselines.dqn_from_scratch", "main",
+        "dqn": ("icprl_lightning.commands.baseline_dqn", "main",
                 "SB3 DQN from scratch on each held-out DarkRoom goal"),
-        "tune-bandit": ("icprl_lightning.families.dueling_bandit.tuning", "main",
+        "tune-bandit": ("icprl_lightning.commands.baseline_tune_bandit", "main",
                         "tune the feature-aware dueling-bandit baselines on training problems only"),
     },
     "analyze": {
-        "reward-quality": ("icprl_lightning.evaluation.reward_quality", "main",
+        "reward-quality": ("icprl_lightning.commands.analyze_reward_quality", "main",
                            "RewardGen's held-out pair accuracy and label correlation with the latent reward"),
-        "reward-bayes": ("icprl_lightning.evaluation.reward_bayes", "main",
+        "reward-bayes": ("icprl_lightning.commands.analyze_reward_bayes", "main",
                          "the Bayes-optimal DarkRoom reward from one T-PRL pair, in the same measures"),
-        "icrg-labels": ("icprl_lightning.evaluation.icrg_labels", "main",
+        "icrg-labels": ("icprl_lightning.commands.analyze_icrg_labels", "main",
                         "ICRG's reward labels against the latent reward, in pretraining and at deployment"),
-        "dit-advantages": ("icprl_lightning.evaluation.dit_advantages", "main",
+        "dit-advantages": ("icprl_lightning.commands.analyze_dit_advantages", "main",
                            "correlation of DIT's advantages with each step's progress (and the SAC oracle's A*)"),
-        "dit-weights": ("icprl_lightning.evaluation.dit_weights", "main",
+        "dit-weights": ("icprl_lightning.commands.analyze_dit_weights", "main",
                         "which DarkRoom actions DIT's exp(A/eta) weights favour, against the behavior's"),
-        "label-ceiling": ("icprl_lightning.evaluation.label_ceiling", "main",
+        "label-ceiling": ("icprl_lightning.commands.analyze_label_ceiling", "main",
                           "the exact goal posterior of DarkRoom I-PRL contexts' labels: what any learner can earn"),
-        "checksums": ("icprl_lightning.data.checksums", "main",
+        "checksums": ("icprl_lightning.commands.analyze_checksums", "main",
                       "generate configs' datasets in a scratch directory and print or compare their SHA-256"),
     },
 }
@@ -130,7 +132,7 @@ def _unknown(what: str, name: str, known: dict, where: str, listing: str) -> NoR
 
 def run_cli(args: list[str], run: bool = True):
     """Parse ``args`` as the command line would be (tests call this) and run the LightningCLI subcommand."""
-    from icprl_lightning.trainer_cli import run_cli as run_trainer_cli
+    from icprl_lightning.commands.trainer import run_cli as run_trainer_cli
 
     return run_trainer_cli(args, run=run)
 
@@ -215,7 +217,3 @@ def main(args: list[str] | None = None) -> None:
             raise
         sys.stderr.write(f"icprl {name}: error: {_one_line(e)}\n")  # the fit failed: status 1, not a usage error
         raise SystemExit(1) from None
-
-
-if __name__ == "__main__":
-    main()
