@@ -305,3 +305,16 @@ def write_json_atomic(path: str | Path, payload: dict[str, Any]) -> Path:
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def payloads_in(folder: Path, kind) -> list[tuple[str, dict[str, Any]]]:
+    """The JSON files of ``folder`` whose content ``kind`` accepts, by stem (unreadable ones skipped)."""
+    out = []
+    for path in sorted(folder.glob("*.json")):
+        try:
+            payload = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            continue
+        if kind(payload):
+            out.append((path.stem, payload))
+    return out

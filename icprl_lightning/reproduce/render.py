@@ -29,6 +29,7 @@ from typing import Any
 
 import yaml
 
+from icprl_lightning.io import payloads_in
 from icprl_lightning.reproduce.statistics import (
     Scores,
     difference,
@@ -183,19 +184,6 @@ def command_of(table: str) -> str:
     if (EXPERIMENTS / f"{table}.yaml").exists():
         return f"icprl reproduce {table}"
     return "an investigation outside the experiment files: see the notebook (docs/notebook.md)"
-
-
-def payloads_in(folder: Path, kind) -> list[tuple[str, dict[str, Any]]]:
-    """The JSON files of ``folder`` whose content ``kind`` accepts, by stem (unreadable ones skipped)."""
-    out = []
-    for path in sorted(folder.glob("*.json")):
-        try:
-            payload = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            continue
-        if kind(payload):
-            out.append((path.stem, payload))
-    return out
 
 
 def evaluations_in(folder: Path) -> list[tuple[str, dict[str, Any]]]:
