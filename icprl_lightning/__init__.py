@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time ``__getattr__`
     )
     from icprl_lightning.deploy import Agent, load_agent
     from icprl_lightning.online import OnlineAgent
-    from icprl_lightning.registry import register_method
+    from icprl_lightning.registry import register_evaluation, register_method
 
 __version__ = importlib.metadata.version("icprl_lightning")  # pyproject.toml's, as installed
 # public name -> the module that defines it
@@ -30,13 +30,15 @@ _EXPORTS = {
     "load_agent": "icprl_lightning.deploy",
     "OnlineAgent": "icprl_lightning.online",
     "register_method": "icprl_lightning.registry",
+    "register_evaluation": "icprl_lightning.registry",
     "RewardContext": "icprl_lightning.contexts",
     "RewardTrajectoryContext": "icprl_lightning.contexts",
     "StepPreferenceContext": "icprl_lightning.contexts",
     "TrajectoryPreferenceContext": "icprl_lightning.contexts",
 }
 __all__ = ["Agent", "OnlineAgent", "RewardContext", "RewardTrajectoryContext", "StepPreferenceContext",
-           "TrajectoryPreferenceContext", "load_agent", "register_method"]
+           "TrajectoryPreferenceContext", "load_agent", "register_evaluation",
+           "register_method"]
 
 
 def __getattr__(name: str) -> Any:

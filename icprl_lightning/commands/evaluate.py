@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any, NoReturn
@@ -19,6 +20,8 @@ from icprl_lightning.evaluation.report import aligned_tables, markdown_tables, r
 def fail(parser: argparse.ArgumentParser, message: str) -> NoReturn:
     """Exit 2 with one line on stderr: a file or a pairing is wrong, not the command's syntax (no usage text)."""
     parser.exit(2, f"{parser.prog}: error: {message}\n")
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="icprl evaluate", description=source.__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -40,6 +43,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--data", action="append", default=[], metavar="FILE",
                         help="a YAML data section stacked on every run's config (e.g. configs/eval/"
                         "reach_fresh_goals.yaml: other held-out tasks); the checkpoints are unchanged")
+    parser.add_argument("--evaluation", help="a registered evaluation of your own (evaluation/base.py, "
+                        "docs/extending_evaluations.md) instead of the built-in tables")
+    parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                        help="--evaluation: a keyword of its constructor (VALUE read as YAML)")
     parser.add_argument("--title", default="held-out tasks", help="figure title")
     parser.add_argument("--out", help="output path without extension (default: <run dir>/eval/<date-time> of the "
                         "first checkpoint)")
@@ -76,6 +83,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args.out = args.out or str(default_out(next(iter(args.runs.values()))[1][0]))
     args.parser = parser
     return args
+
+
 def main(argv: list[str] | None = None) -> dict:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["online"]:  # the online mode: its own options (evaluation/online_command.py)
@@ -94,6 +103,8 @@ def main(argv: list[str] | None = None) -> dict:
             datamodules[name] = run_datamodule(name, config, checkpoints, args.data)
         except ValueError as e:
             fail(args.parser, str(e))
+    if args.evaluation:
+        return run_registered(args, datamodules, greedy)
     kinds = {name: is_bandit_data(dm) for name, dm in datamodules.items()}
     if len(set(kinds.values())) > 1:
         fail(args.parser, "runs mix dueling bandits with MDP families: "
@@ -114,4 +125,40 @@ def main(argv: list[str] | None = None) -> dict:
     write_outputs(payload, args.out)
     print(aligned_tables(markdown_tables(payload)), flush=True)
     print(f"wrote {args.out}.json, {args.out}.md, {args.out}.png", flush=True)
+    return payload
+
+
+def run_registered(args: argparse.Namespace, datamodules: dict[str, Any], greedy: bool | None) -> dict[str, Any]:
+    """``--evaluation NAME``: the registered evaluation run on every ``--run``, its payload written with its own
+    table and figure (``evaluation/base.py``)."""
+    import yaml
+
+    from icprl_lightning.evaluation.base import KIND, Run
+    from icprl_lightning.io import jsonable
+    from icprl_lightning.registry import EVALUATIONS
+
+    options = {}
+    for spec in args.option:
+        key, sep, value = spec.partition("=")
+        if not (key and sep):
+            fail(args.parser, f"--option {spec!r} is not KEY=VALUE")
+        options[key] = yaml.safe_load(value)
+    try:
+        kind = EVALUATIONS.get(args.evaluation)
+        evaluation = kind(**options)
+    except (ValueError, TypeError) as e:
+        fail(args.parser, f"--evaluation {args.evaluation}: {e}")
+    for dm in datamodules.values():
+        dm.prepare_data()
+    runs = [Run(name, datamodules[name], tuple(checkpoints), greedy)
+            for name, (_, checkpoints) in args.runs.items()]
+    payload = {KIND: kind.name, "title": args.title, "seeds": args.seeds, "options": options,
+               **evaluation.run(runs, list(args.seeds))}
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(jsonable(payload), indent=2))
+    out.with_suffix(".md").write_text(kind.markdown(payload))
+    kind.figure(payload, out.with_suffix(".png"))
+    print(kind.markdown(payload), flush=True)
+    print(f"wrote {out}.json, {out}.md" + (f", {out}.png" if out.with_suffix(".png").exists() else ""), flush=True)
     return payload

@@ -339,7 +339,7 @@ class _Reader:
     # ---- evaluations ----------------------------------------------------------------------------------------------
 
     def evaluation(self, where: str, data: Any) -> Evaluation | OnlineEvaluation | ADEvaluation:
-        data = self.keys(where, data, ("suffix", "act", "data", "online", "ad"), ("suffix",))
+        data = self.keys(where, data, ("suffix", "act", "data", "online", "ad", "evaluation", "options"), ("suffix",))
         suffix = self.text(f"{where}.suffix", data["suffix"])
         if "ad" in data:
             return self.ad_evaluation(where, suffix, data)
@@ -347,7 +347,7 @@ class _Reader:
             act = self.choice(f"{where}.act", data["act"], tuple(ACTS)) if "act" in data else None
             files = tuple(self.file(f"{where}.data[{i}]", f) for i, f in enumerate(self.texts(f"{where}.data",
                                                                                               data.get("data", []))))
-            return Evaluation(suffix, ACTS[act] if act else (), files)
+            return Evaluation(suffix, (ACTS[act] if act else ()) + self.registered(where, data), files)
         if "data" in data:
             self.fail(f"{where}.data", "an online evaluation deploys on the runs' own data")
         if "act" in data:
@@ -379,6 +379,27 @@ class _Reader:
         if "episodes" in values and "rounds" in values:
             self.fail(f"{where}.online", "episodes (an MDP family) or rounds (a bandit), not both")
         return OnlineEvaluation(**values)
+
+    def registered(self, where: str, data: dict) -> tuple[str, ...]:
+        """``evaluation: NAME`` (a registered evaluation, ``evaluation/base.py``) and its ``options`` as the flags of
+        ``icprl evaluate``; none without ``evaluation``."""
+        if "evaluation" not in data:
+            if "options" in data:
+                self.fail(f"{where}.options", "options are an evaluation's: name it with evaluation: NAME")
+            return ()
+        from icprl_lightning.registry import EVALUATIONS
+
+        name = self.text(f"{where}.evaluation", data["evaluation"])
+        if name not in EVALUATIONS.names():
+            self.fail(f"{where}.evaluation", f"{name!r} is not a registered evaluation ({EVALUATIONS.short_names()})")
+        options = data.get("options") or {}
+        if not isinstance(options, dict):
+            self.fail(f"{where}.options", f"must be a mapping of keyword: value, got {options!r}")
+        flags = ("--evaluation", name)
+        for key, value in options.items():  # a value as YAML writes it inline: the command reads it back as YAML
+            text = yaml.safe_dump(value, default_flow_style=True).removesuffix("...\n").strip()
+            flags += ("--option", f"{key}={text}")
+        return flags
 
     def ad_evaluation(self, where: str, suffix: str, data: dict) -> ADEvaluation:
         for key in ("act", "data", "online"):

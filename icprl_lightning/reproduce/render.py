@@ -29,6 +29,7 @@ from typing import Any
 
 import yaml
 
+from icprl_lightning.evaluation.base import KIND, evaluation_of
 from icprl_lightning.io import payloads_in
 from icprl_lightning.reproduce.statistics import (
     Scores,
@@ -74,8 +75,10 @@ def main_metric(payload: dict[str, Any]) -> Metric:
 
 
 def is_evaluation(payload: Any) -> bool:
-    """An ``icprl evaluate`` JSON (or ``icprl evaluate ad``'s): its rows name the run that gave the reference rows."""
-    return isinstance(payload, dict) and "reference_rows_from" in payload and isinstance(payload.get("results"), dict)
+    """An ``icprl evaluate`` JSON (or ``icprl evaluate ad``'s) of the built-in tables: its rows name the run that gave
+    the reference rows (a registered evaluation's JSON names its kind instead, ``evaluation/base.py``)."""
+    return (isinstance(payload, dict) and "reference_rows_from" in payload and isinstance(payload.get("results"), dict)
+            and KIND not in payload)
 
 
 def number(value: float) -> str:
@@ -394,19 +397,29 @@ def pretrained_table() -> str:
     return "\n".join(lines) + "\n"
 
 
-def rendered(root: Path = RESULTS) -> dict[Path, str]:
-    """Every generated text page, path -> content (the figures are drawn by ``render``)."""
+def folder_tables(folder: Path) -> dict[Path, str]:
+    """``<name>.md`` of every results JSON in ``folder``, from the JSON alone: the tables ``icprl evaluate`` (and its
+    ``ad`` mode) printed, the regrets of ``icprl evaluate online`` on a bandit, a registered evaluation's own
+    ``markdown`` (``evaluation/base.py``)."""
     from icprl_lightning.evaluation.ad_command import ad_markdown, is_ad_payload
     from icprl_lightning.evaluation.online_bandit import online_bandit_markdown
     from icprl_lightning.evaluation.report import markdown_tables
+
+    pages = {folder / f"{name}.md": (ad_markdown if is_ad_payload(payload) else markdown_tables)(payload)
+             for name, payload in evaluations_in(folder)}
+    pages.update({folder / f"{name}.md": online_bandit_markdown(payload) for name, payload in online_bandit_in(folder)})
+    pages.update({folder / f"{name}.md": evaluation_of(payload).markdown(payload)
+                  for name, payload in payloads_in(folder, lambda p: isinstance(p, dict) and KIND in p)})
+    return pages
+
+
+def rendered(root: Path = RESULTS) -> dict[Path, str]:
+    """Every generated text page, path -> content (the figures are drawn by ``render``)."""
     from icprl_lightning.reproduce.speed import speed_page
 
     pages: dict[Path, str] = {}
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
-        for name, payload in evaluations_in(folder):  # the tables `icprl evaluate` printed, from their JSON
-            pages[folder / f"{name}.md"] = (ad_markdown if is_ad_payload(payload) else markdown_tables)(payload)
-        for name, payload in online_bandit_in(folder):  # the regrets of `icprl evaluate online` on a bandit
-            pages[folder / f"{name}.md"] = online_bandit_markdown(payload)
+        pages.update(folder_tables(folder))
         page = summary_page(folder) or speed_page(folder)
         if page is not None:
             pages[folder / "summary.md"] = page

@@ -318,6 +318,7 @@ def redraw(table: Table, out_dir: Path) -> list[Path]:
     the learning curves in ``<table>_reproduce.json``), without training or evaluating; returns the files read.
     An online evaluation draws its own figure when it runs."""
     from icprl_lightning.evaluation.ad_command import ad_figure
+    from icprl_lightning.evaluation.base import evaluation_of
     from icprl_lightning.evaluation.report import write_figures
 
     offline = [e for e in table.evaluations if isinstance(e, Evaluation)]
@@ -332,6 +333,8 @@ def redraw(table: Table, out_dir: Path) -> list[Path]:
         payload = json.loads(source.read_text())
         if source in ad:
             ad_figure(payload, source.with_suffix(".png"))
+        elif (registered := evaluation_of(payload)) is not None:
+            registered.figure(payload, source.with_suffix(".png"))
         else:
             write_figures(payload, source.with_suffix(""))
     if table.figure:

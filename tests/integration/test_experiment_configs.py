@@ -20,12 +20,12 @@ from factories import REPO, save_untrained
 from jsonargparse import Namespace
 
 from icprl_lightning.checkpoints import SEAL_KEY, seal
+from icprl_lightning.commands.reproduce import main
 from icprl_lightning.reproduce import (
     Run,
     TableError,
     fit_command,
     load_table,
-    main,
     slug,
     stages,
     table_names,

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 from factories import REPO, tiny_darkroom_args
 
+from icprl_lightning.commands.reproduce import main
 from icprl_lightning.reproduce import (
     Evaluation,
     OnlineEvaluation,
@@ -19,7 +20,6 @@ from icprl_lightning.reproduce import (
     fit_inputs,
     load_table,
     load_tables,
-    main,
     needed_runs,
     reproduce,
     slug,

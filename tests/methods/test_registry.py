@@ -17,7 +17,7 @@ from factories import save_untrained
 from icprl_lightning import StepPreferenceContext, load_agent, register_method
 from icprl_lightning.checkpoints import CLASS_KEY, checksum, seal
 from icprl_lightning.methods.base import InContextModule
-from icprl_lightning.registry import _REGISTERED, BUILTIN_METHODS, ENTRY_POINT_GROUP, method_class, method_names
+from icprl_lightning.registry import BUILTIN_METHODS, ENTRY_POINT_GROUP, METHODS, method_class, method_names
 
 
 class ArgmaxOfPreferred(InContextModule):
@@ -39,7 +39,7 @@ def registered():
     """ArgmaxOfPreferred registered for one test, then forgotten."""
     register_method(ArgmaxOfPreferred)
     yield ArgmaxOfPreferred
-    _REGISTERED.pop(f"{__name__}.ArgmaxOfPreferred", None)
+    METHODS.forget(f"{__name__}.ArgmaxOfPreferred")
 
 
 def _context(b: int = 2, t: int = 5) -> StepPreferenceContext:
@@ -58,7 +58,7 @@ def test_a_registered_method_saves_and_deploys_through_load_agent(registered, tm
 
 def test_the_same_file_is_refused_once_the_method_is_not_registered(registered, tmp_path):
     path = save_untrained(registered(state_dim=2, action_dim=5, discrete=True, max_context=5), tmp_path / "m.ckpt")
-    _REGISTERED.clear()
+    METHODS.forget(f"{__name__}.ArgmaxOfPreferred")
     with pytest.raises(ValueError, match="ArgmaxOfPreferred', which is not a registered method .*refusing to "
                                          "import it"):
         load_agent(path)
