@@ -41,6 +41,7 @@ import torch
 
 from icprl_lightning import checkpoints
 from icprl_lightning.io import sha256, staged_directory
+from icprl_lightning.untrusted import check_argument_types, read_json, read_yaml
 
 WEIGHTS = "model.safetensors"
 CONFIG = "config.json"
@@ -87,13 +88,10 @@ def read_config(path: str | Path) -> dict[str, Any]:
     if not directory.is_dir():
         raise FileNotFoundError(f"No model directory at {directory}")
     file = directory / CONFIG
-    if not file.is_file():
+    if not file.exists():
         raise FileNotFoundError(f"{directory} has no {CONFIG}, so it is not a model directory (`icprl export` writes "
                                 "one); for a training run pass its checkpoints/last.ckpt")
-    try:
-        config = json.loads(file.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{file} is not readable JSON ({e})") from None
+    config = read_json(file, f"{WHAT} config")
     if not isinstance(config, dict) or config.get("schema_version") != SCHEMA_VERSION:
         found = config.get("schema_version") if isinstance(config, dict) else None
         raise ValueError(f"{file} is not an {WHAT} config of schema version {SCHEMA_VERSION} (schema_version "
@@ -151,6 +149,7 @@ def _build(ckpt: dict[str, Any], config_file: Path):
     cls = checkpoints.method_classes()[ckpt[checkpoints.CLASS_KEY]]
     accepted = inspect.signature(cls.__init__).parameters
     hparams = {k: v for k, v in checkpoints.hyperparameters(ckpt).items() if k in accepted and k != "self"}
+    check_argument_types(cls, hparams, str(config_file))
     try:
         return cls(**hparams)
     except (TypeError, ValueError, RuntimeError, KeyError, AssertionError) as e:
@@ -188,12 +187,7 @@ def run_config_of(checkpoint: Path) -> Path | None:
 
 def _read_run_config(path: Path) -> dict[str, Any]:
     """What config.json keeps of a run's config.yaml (read with ``yaml.safe_load``: plain values only)."""
-    import yaml
-
-    try:
-        run = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-        raise ValueError(f"{path} is not a readable YAML config ({_short(e)})") from None
+    run = read_yaml(path, "run config")
     if not isinstance(run, dict):
         raise ValueError(f"{path} is not a config of `icprl fit` (not a mapping)")
     data = run.get("data") if isinstance(run.get("data"), dict) else {}
@@ -208,12 +202,7 @@ def _read_run_config(path: Path) -> dict[str, Any]:
 
 def _read_results(path: Path) -> dict[str, Any]:
     """An ``icprl evaluate`` JSON (its ``results`` table is what the card shows)."""
-    try:
-        evaluation = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"No results file at {path}") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path} is not readable JSON ({_short(e)})") from None
+    evaluation = read_json(path, "results file")
     if not isinstance(evaluation, dict) or not isinstance(evaluation.get("results"), dict):
         raise ValueError(f"{path} is not an `icprl evaluate` JSON (no 'results' table)")
     return evaluation

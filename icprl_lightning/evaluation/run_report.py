@@ -33,6 +33,7 @@ from rich.table import Table
 
 from icprl_lightning.evaluation.report import regret_table, results_table
 from icprl_lightning.families.base import QUALITIES
+from icprl_lightning.io import save_figure
 
 FIGURE_NAME = "curves.png"
 MAX_PANELS = 12
@@ -200,7 +201,7 @@ def curves_figure(curves: Curves, path: Path, title: str) -> None:
         ax.set_xlabel("step", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.legend(fontsize=6)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 def report(run: Path, figure: Path | None, console: Console) -> Path | None:

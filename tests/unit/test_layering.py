@@ -22,7 +22,7 @@ PACKAGE = REPO / "icprl_lightning"
 
 # lowest first; a module's layer is the first entry its dotted name starts with
 LAYERS = [
-    ("contexts", "preferences", "io", "metrics", "validation",   # ground: shared vocabulary, argument checks,
+    ("contexts", "preferences", "io", "untrusted", "metrics", "validation",  # ground: shared vocabulary, checks,
      "progress", "data_contract", "samples"),                     # progress lines, what a DataModule serves,
                                                                   # typed training samples
     ("sb3",),                                       # SB3 agents evaluated while they train (oracle, baselines)
