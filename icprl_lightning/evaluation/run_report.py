@@ -91,12 +91,15 @@ def read_metrics(path: Path) -> Curves:
                     step = int(float(row["step"]))
                     epoch = int(float(row["epoch"])) if row.get("epoch") else None
                     values = {k: float(v) for k, v in row.items() if k not in ("step", "epoch") and k and v}
-                except (TypeError, ValueError):
-                    raise ValueError(f"{path}: line {line} holds a value that is not a number") from None
+                except (TypeError, ValueError, OverflowError):  # OverflowError: a step of inf (1e400)
+                    raise ValueError(f"{path}: line {line} holds a value that is not a number (or a step or epoch "
+                                     "that is not a finite integer)") from None
                 for name, value in values.items():
                     curves.setdefault(name, []).append(Point(step, epoch, value))
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text file") from None
+    except csv.Error as e:  # a cell over csv's field size limit, a NUL byte, ...
+        raise ValueError(f"{path}: not a readable CSV file ({e})") from None
     return curves
 
 
