@@ -14,6 +14,7 @@ import struct
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from factories import save_untrained
@@ -22,6 +23,7 @@ from safetensors.torch import load_file
 from icprl_lightning import load_agent
 from icprl_lightning.checkpoints import CHECKSUM_KEY, CLASS_KEY, checkpoint_for_lightning, checksum
 from icprl_lightning.checkpoints import main as checkpoint_main
+from icprl_lightning.data.importer import import_preferences
 from icprl_lightning.data.interop.provenance import ExportError, parse
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.metaworld_reach.sac_weights import CHECKSUMS, MANIFEST, ExportedSAC
@@ -241,3 +243,39 @@ def test_the_oracle_loads_only_verified_files_of_its_own_directory(tmp_path):
     assert not marker.exists()
     shutil.rmtree(tmp_path / "oracle")
     assert ExportedSAC(_oracle(tmp_path, lambda out, m: None)).levels  # the control: a consistent copy loads
+
+
+# ---- icprl import ---------------------------------------------------------------------------------------------
+
+def _arrays(actions: int) -> dict[str, np.ndarray]:
+    return {"states": np.zeros((4, 3, 2), np.float32), "actions": np.full((4, 3), actions, np.int64),
+            "alt_actions": np.zeros((4, 3), np.int64), "preferred": np.ones((4, 3), np.uint8)}
+
+
+def test_action_indices_beyond_int32_are_stored_without_wrapping(tmp_path):
+    n = 3_000_000_001
+    import_preferences(_arrays(n - 1), tmp_path / "data", n_actions=n, val_fraction=0.0)
+    stored = [a for p in (tmp_path / "data").rglob("actions.npy") if (a := np.load(p)).size]
+    assert stored and all(int(a.min()) == int(a.max()) == n - 1 for a in stored), [a.dtype for a in stored]
+
+
+def test_a_fifo_named_like_a_source_field_is_refused_without_blocking(tmp_path):
+    source = tmp_path / "source"
+    source.mkdir()
+    for name, array in _arrays(1).items():
+        np.save(source / f"{name}.npy", array)
+    (source / "states.npy").unlink()
+    os.mkfifo(source / "states.npy")
+
+    def hang(*_):
+        raise TimeoutError("the import blocked on the FIFO")
+
+    previous = signal.signal(signal.SIGALRM, hang)
+    signal.alarm(20)
+    try:
+        with pytest.raises(ValueError, match=rf"{source / 'states.npy'} is a FIFO \(named pipe\), not a regular file"):
+            import_preferences(source, tmp_path / "data", n_actions=5)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    assert not (tmp_path / "data").exists()

@@ -129,8 +129,8 @@ def test_exports_and_imports_refuse_a_link_or_fifo_at_their_output(tmp_path, no_
     module = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=6,
                         backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
     ckpt = save_untrained(module, tmp_path / "m.ckpt")
-    arrays = {"states": np.zeros((4, 3, 2), np.float32), "actions_a": np.zeros((4, 3), np.int64),
-              "actions_b": np.ones((4, 3), np.int64), "preferred": np.ones((4, 3), np.uint8)}
+    arrays = {"states": np.zeros((4, 3, 2), np.float32), "actions": np.zeros((4, 3), np.int64),
+              "alt_actions": np.ones((4, 3), np.int64), "preferred": np.ones((4, 3), np.uint8)}
     victim_dir = tmp_path / "victim"
     victim_dir.mkdir()
     (victim_dir / "keep.txt").write_text(PRECIOUS)
