@@ -149,10 +149,7 @@ def _check_field(name: str, x: np.ndarray, spec: FieldSpec, n: int, t: int, s: i
         if x.min() < 0 or x.max() >= actions.size:
             raise ValueError(f"field {name!r} holds action indices in [{x.min()}, {x.max()}], outside "
                              f"[0, {actions.size}) of --n-actions {actions.size}")
-        stored = x.astype(_index_dtype(actions.size))
-        if not np.array_equal(stored, x):  # never a silent wrap, whatever the dtype choice
-            raise ValueError(f"field {name!r}: action indices do not fit the stored dtype {stored.dtype}")
-        return stored
+        return x.astype(_index_dtype(actions.size))  # [0, n) fits: never a silent wrap
     if x.shape[2] != actions.size:
         raise ValueError(f"field {name!r} has action size {x.shape[2]}, --action-dim is {actions.size}; "
                          f"expected shape {expected}")
