@@ -31,7 +31,6 @@ import argparse
 import inspect
 import json
 import math
-import os
 import re
 import shutil
 from pathlib import Path
@@ -40,7 +39,7 @@ from typing import Any
 import torch
 
 from icprl_lightning import checkpoints
-from icprl_lightning.io import sha256, staged_directory
+from icprl_lightning.io import StorageError, sha256, staged_directory, storage_error
 from icprl_lightning.untrusted import check_argument_types, read_json, read_yaml
 
 WEIGHTS = "model.safetensors"
@@ -222,8 +221,6 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
     setting and seed. ``command``: the command that trained it. ``name``: the model's name (default: the
     directory's). An existing ``out_dir`` is replaced only with ``overwrite`` and only if it is a model directory.
     """
-    from safetensors.torch import save_file
-
     import icprl_lightning
 
     checkpoint, out_dir = Path(checkpoint), Path(out_dir)
@@ -247,17 +244,28 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
               "parameters": sum(p.numel() for p in module.parameters()),
               "icprl_lightning_version": icprl_lightning.__version__, "exported_from": checkpoint.name,
               "results": RESULTS if evaluation is not None else None}
+    try:
+        _write_model_dir(out_dir, overwrite, tensors, config, module, evaluation, results)
+    except (StorageError, FileExistsError):
+        raise
+    except OSError as e:  # a full disk or a failing write: one line naming the directory; nothing is left behind
+        raise storage_error(e, out_dir, "exporting the model to", "nothing was written") from None
+    return out_dir
+
+
+def _write_model_dir(out_dir: Path, overwrite: bool, tensors: dict[str, torch.Tensor], config: dict[str, Any],
+                     module: torch.nn.Module, evaluation: dict[str, Any] | None, results: Any) -> None:
+    from safetensors.torch import save
+
     with staged_directory(out_dir, marker=CONFIG, schema_version=SCHEMA_VERSION, what=WHAT,
                           overwrite=overwrite) as tmp:
-        save_file(tensors, str(tmp / WEIGHTS), metadata={"format": "pt"})
+        (tmp / WEIGHTS).write_bytes(save(tensors, metadata={"format": "pt"}))  # an OSError, not a SafetensorError
         config["weights_sha256"] = sha256(tmp / WEIGHTS)
         (tmp / CONFIG).write_text(json.dumps(config, indent=2, default=str) + "\n")
-        os.chmod(tmp / WEIGHTS, (tmp / CONFIG).stat().st_mode & 0o777)  # safetensors writes 0600; as the others
         if evaluation is not None:
             shutil.copyfile(results, tmp / RESULTS)
         model_card(config, module, evaluation).save(tmp / CARD)
         load_model_dir(tmp)  # the staged copy loads, checks and all, before it is moved into place
-    return out_dir
 
 
 # ---- the model card ------------------------------------------------------------------------------------------

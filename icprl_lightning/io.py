@@ -198,8 +198,11 @@ def _acquire(lock: Path, path: Path) -> int | None:
             if current is None or (current.st_dev, current.st_ino) != (mine.st_dev, mine.st_ino):
                 os.close(fd)  # the holder removed that file on release: lock the new one
                 continue
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            try:  # the holder's pid, for the waiting message only: a full disk must not leave the lock behind
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            except OSError:
+                pass
             return fd
         except BaseException:
             os.close(fd)

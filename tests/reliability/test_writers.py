@@ -159,3 +159,25 @@ def test_icprl_report_reads_any_csv_or_says_which_line(tmp_path, capsys, row, pr
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "icprl report: error:" in err
     assert re.search(problem, err), err
+
+
+@pytest.mark.parametrize("limit", [4096, 16384])
+def test_icprl_export_onto_a_failing_disk_names_the_path_and_leaves_nothing(tmp_path, limit):
+    """A real failing write (RLIMIT_FSIZE: every write past ``limit`` bytes is EFBIG), no mock: one line naming the
+    export directory, exit 2, and nothing left beside it (no staged copy, no ``.lock``)."""
+    import resource
+    import subprocess
+    import sys
+
+    module = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=6,
+                        backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
+    ckpt = save_untrained(module, tmp_path / "m.ckpt")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    done = subprocess.run([sys.executable, "-m", "icprl_lightning.cli", "export", str(ckpt), "--out",
+                           str(tmp_path / "model")], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "OMP_NUM_THREADS": "1"},
+                          preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit)))
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert done.stderr.endswith(f"icprl export: error: exporting the model to {tmp_path / 'model'} failed: File too "
+                                "large; nothing was written\n"), done.stderr[-2000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
