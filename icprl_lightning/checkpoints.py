@@ -50,6 +50,7 @@ from typing import Any
 import torch
 
 from icprl_lightning.registry import class_path, method_class, method_names, short_names
+from icprl_lightning.untrusted import check_argument_types, check_torch_archive
 
 CLASS_KEY = "icprl_class_path"
 CHECKSUM_KEY = "icprl_sha256"
@@ -175,6 +176,7 @@ def load_raw(path: str | Path, map_location: str | torch.device = "cpu") -> dict
                          f"{path}/checkpoints/last.ckpt)")
     if not path.is_file():
         raise FileNotFoundError(f"No checkpoint at {path}")
+    check_torch_archive(path)  # nothing inflated or read beyond the file's size
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as e:  # torch raises many types for a damaged file
@@ -273,6 +275,7 @@ def build_module(ckpt: dict[str, Any], path: str | Path, map_location: str | tor
     # also records its own, e.g. context_kind, and the CLI adds _class_path / _instantiator)
     accepted = inspect.signature(cls.__init__).parameters
     hparams = {k: v for k, v in hyperparameters(ckpt).items() if k in accepted and k != "self"}
+    check_argument_types(cls, hparams, str(path))
     try:
         module = cls(**hparams)
         module.load_state_dict(ckpt["state_dict"], strict=True)

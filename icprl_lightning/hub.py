@@ -30,7 +30,6 @@ from __future__ import annotations
 import inspect
 import json
 import math
-import os
 import re
 import shutil
 from pathlib import Path
@@ -39,8 +38,9 @@ from typing import Any
 import torch
 
 from icprl_lightning import checkpoints
-from icprl_lightning.io import sha256, staged_directory
+from icprl_lightning.io import StorageError, sha256, staged_directory, storage_error
 from icprl_lightning.registry import method_class, method_names, short_names
+from icprl_lightning.untrusted import check_argument_types, read_json, read_yaml
 
 WEIGHTS = "model.safetensors"
 CONFIG = "config.json"
@@ -87,13 +87,10 @@ def read_config(path: str | Path) -> dict[str, Any]:
     if not directory.is_dir():
         raise FileNotFoundError(f"No model directory at {directory}")
     file = directory / CONFIG
-    if not file.is_file():
+    if not file.exists():
         raise FileNotFoundError(f"{directory} has no {CONFIG}, so it is not a model directory (`icprl export` writes "
                                 "one); for a training run pass its checkpoints/last.ckpt")
-    try:
-        config = json.loads(file.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{file} is not readable JSON ({e})") from None
+    config = read_json(file, f"{WHAT} config")
     if not isinstance(config, dict) or config.get("schema_version") != SCHEMA_VERSION:
         found = config.get("schema_version") if isinstance(config, dict) else None
         raise ValueError(f"{file} is not an {WHAT} config of schema version {SCHEMA_VERSION} (schema_version "
@@ -150,6 +147,7 @@ def _build(ckpt: dict[str, Any], config_file: Path):
     cls = method_class(ckpt[checkpoints.CLASS_KEY])
     accepted = inspect.signature(cls.__init__).parameters
     hparams = {k: v for k, v in checkpoints.hyperparameters(ckpt).items() if k in accepted and k != "self"}
+    check_argument_types(cls, hparams, str(config_file))
     try:
         return cls(**hparams)
     except (TypeError, ValueError, RuntimeError, KeyError, AssertionError) as e:
@@ -187,12 +185,7 @@ def run_config_of(checkpoint: Path) -> Path | None:
 
 def _read_run_config(path: Path) -> dict[str, Any]:
     """What config.json keeps of a run's config.yaml (read with ``yaml.safe_load``: plain values only)."""
-    import yaml
-
-    try:
-        run = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-        raise ValueError(f"{path} is not a readable YAML config ({_short(e)})") from None
+    run = read_yaml(path, "run config")
     if not isinstance(run, dict):
         raise ValueError(f"{path} is not a config of `icprl fit` (not a mapping)")
     data = run.get("data") if isinstance(run.get("data"), dict) else {}
@@ -207,12 +200,7 @@ def _read_run_config(path: Path) -> dict[str, Any]:
 
 def _read_results(path: Path) -> dict[str, Any]:
     """An ``icprl evaluate`` JSON (its ``results`` table is what the card shows)."""
-    try:
-        evaluation = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"No results file at {path}") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path} is not readable JSON ({_short(e)})") from None
+    evaluation = read_json(path, "results file")
     if not isinstance(evaluation, dict) or not isinstance(evaluation.get("results"), dict):
         raise ValueError(f"{path} is not an `icprl evaluate` JSON (no 'results' table)")
     return evaluation
@@ -233,8 +221,6 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
     directory's). An existing ``out_dir`` is replaced only with ``overwrite`` and only if it is a model directory.
     """
     from importlib.metadata import version
-
-    from safetensors.torch import save_file
 
     checkpoint, out_dir = Path(checkpoint), Path(out_dir)
     ckpt = checkpoints.read_checkpoint(checkpoint)
@@ -257,17 +243,28 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
               "parameters": sum(p.numel() for p in module.parameters()),
               "icprl_lightning_version": version("icprl_lightning"), "exported_from": checkpoint.name,
               "results": RESULTS if evaluation is not None else None}
+    try:
+        _write_model_dir(out_dir, overwrite, tensors, config, module, evaluation, results)
+    except (StorageError, FileExistsError):
+        raise
+    except OSError as e:  # a full disk or a failing write: one line naming the directory; nothing is left behind
+        raise storage_error(e, out_dir, "exporting the model to", "nothing was written") from None
+    return out_dir
+
+
+def _write_model_dir(out_dir: Path, overwrite: bool, tensors: dict[str, torch.Tensor], config: dict[str, Any],
+                     module: torch.nn.Module, evaluation: dict[str, Any] | None, results: Any) -> None:
+    from safetensors.torch import save
+
     with staged_directory(out_dir, marker=CONFIG, schema_version=SCHEMA_VERSION, what=WHAT,
                           overwrite=overwrite) as tmp:
-        save_file(tensors, str(tmp / WEIGHTS), metadata={"format": "pt"})
+        (tmp / WEIGHTS).write_bytes(save(tensors, metadata={"format": "pt"}))  # an OSError, not a SafetensorError
         config["weights_sha256"] = sha256(tmp / WEIGHTS)
         (tmp / CONFIG).write_text(json.dumps(config, indent=2, default=str) + "\n")
-        os.chmod(tmp / WEIGHTS, (tmp / CONFIG).stat().st_mode & 0o777)  # safetensors writes 0600; as the others
         if evaluation is not None:
             shutil.copyfile(results, tmp / RESULTS)
         model_card(config, module, evaluation).save(tmp / CARD)
         load_model_dir(tmp)  # the staged copy loads, checks and all, before it is moved into place
-    return out_dir
 
 
 # ---- the model card ------------------------------------------------------------------------------------------

@@ -145,11 +145,14 @@ def _generate(argv: list[str]) -> None:
 
 def _user_errors() -> tuple[type[BaseException], ...]:
     """The exception types that mean "the input is wrong", not "the program is": said in one line."""
-    errors: list[type[BaseException]] = [ValueError, FileNotFoundError, IsADirectoryError, NotADirectoryError,
-                                         PermissionError]
+    errors: list[type[BaseException]] = [ValueError, FileNotFoundError, FileExistsError, IsADirectoryError,
+                                         NotADirectoryError, PermissionError]
     store = sys.modules.get("icprl_lightning.data.store")  # loaded by then if a dataset was read
     if store is not None:
         errors.append(store.DatasetError)
+    io = sys.modules.get("icprl_lightning.io")  # loaded by then if anything was written
+    if io is not None:
+        errors.append(io.StorageError)  # a full disk or a failing write: one line naming the path
     return tuple(errors)
 
 

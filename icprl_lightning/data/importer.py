@@ -102,7 +102,8 @@ def _to_float32(name: str, x: np.ndarray) -> np.ndarray:
 
 
 def _index_dtype(n_actions: int) -> type:
-    return np.int8 if n_actions <= 127 else np.int16 if n_actions <= 32767 else np.int32
+    """The smallest signed integer type holding every index in [0, n_actions)."""
+    return next(t for t in (np.int8, np.int16, np.int32, np.int64) if n_actions - 1 <= np.iinfo(t).max)
 
 
 def _check_field(name: str, x: np.ndarray, spec: FieldSpec, n: int, t: int, s: int, actions: ActionSpec,
@@ -146,7 +147,7 @@ def _check_field(name: str, x: np.ndarray, spec: FieldSpec, n: int, t: int, s: i
         if x.min() < 0 or x.max() >= actions.size:
             raise ValueError(f"field {name!r} holds action indices in [{x.min()}, {x.max()}], outside "
                              f"[0, {actions.size}) of --n-actions {actions.size}")
-        return x.astype(_index_dtype(actions.size))
+        return x.astype(_index_dtype(actions.size))  # [0, n) fits: never a silent wrap
     if x.shape[2] != actions.size:
         raise ValueError(f"field {name!r} has action size {x.shape[2]}, --action-dim is {actions.size}; "
                          f"expected shape {expected}")

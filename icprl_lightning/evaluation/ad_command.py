@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from icprl_lightning.io import write_json_atomic
+from icprl_lightning.io import save_figure, write_atomic, write_json_atomic
 
 KIND = "ad_learning_curve"  # the JSON's ``kind``: how ``reproduce.render`` tells it from an ``icprl evaluate`` one
 SOURCE = "Q-learning (source)"
@@ -240,7 +240,7 @@ def evaluate_ad(runs: Mapping[str, tuple[str, Sequence[str]]], episodes: int = 2
                "results": results, "learning_curves": curves}
     if out is not None:
         write_json_atomic(f"{out}.json", payload)
-        Path(f"{out}.md").write_text(ad_markdown(json.loads(Path(f"{out}.json").read_text())))
+        write_atomic(f"{out}.md", ad_markdown(json.loads(Path(f"{out}.json").read_text())))
         ad_figure(payload, f"{out}.png")
     return payload
 
@@ -310,7 +310,7 @@ def ad_figure(payload: dict[str, Any], path: str | Path) -> None:
     ax.set_title(payload["title"], fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 

@@ -30,8 +30,9 @@ from typing import Any
 
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.evaluation import online_bandit, online_mdp
-from icprl_lightning.evaluation.pairing import is_bandit_data
+from icprl_lightning.evaluation.pairing import fit_errors, is_bandit_data
 from icprl_lightning.families.base import TaskFamily
+from icprl_lightning.hub import load_model
 from icprl_lightning.io import write_json_atomic
 
 MDP_ONLY = {"episodes": "--episodes", "quality": "--quality", "targets": "--targets", "dqn": "--dqn"}
@@ -65,6 +66,13 @@ def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | P
         if given[key] is not None:
             raise ValueError(f"{option} applies to {'MDP families' if bandit else 'dueling bandits'}; the config's "
                              f"data are {'a dueling bandit' if bandit else 'an MDP family'}'s")
+    for checkpoint in checkpoints:  # a policy of another family or size: one line naming both, before any data
+        module = load_model(checkpoint)
+        errors = fit_errors(module, dm)
+        if errors:
+            raise ValueError(f"--ckpt {checkpoint} does not fit the data of {' + '.join(map(str, configs))} "
+                             f"({type(dm.family).__name__ if hasattr(dm, 'family') else type(dm).__name__}): "
+                             f"{type(module).__name__} {'; '.join(errors)}")
     dm.prepare_data()
     if bandit:
         result = online_bandit.evaluate_online_bandit(

@@ -30,6 +30,7 @@ from rich.table import Table
 
 from icprl_lightning.evaluation.report import regret_table, results_table
 from icprl_lightning.families.base import QUALITIES
+from icprl_lightning.io import save_figure
 
 FIGURE_NAME = "curves.png"
 MAX_PANELS = 12
@@ -87,12 +88,15 @@ def read_metrics(path: Path) -> Curves:
                     step = int(float(row["step"]))
                     epoch = int(float(row["epoch"])) if row.get("epoch") else None
                     values = {k: float(v) for k, v in row.items() if k not in ("step", "epoch") and k and v}
-                except (TypeError, ValueError):
-                    raise ValueError(f"{path}: line {line} holds a value that is not a number") from None
+                except (TypeError, ValueError, OverflowError):  # OverflowError: a step of inf (1e400)
+                    raise ValueError(f"{path}: line {line} holds a value that is not a number (or a step or epoch "
+                                     "that is not a finite integer)") from None
                 for name, value in values.items():
                     curves.setdefault(name, []).append(Point(step, epoch, value))
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text file") from None
+    except csv.Error as e:  # a cell over csv's field size limit, a NUL byte, ...
+        raise ValueError(f"{path}: not a readable CSV file ({e})") from None
     return curves
 
 
@@ -197,7 +201,7 @@ def curves_figure(curves: Curves, path: Path, title: str) -> None:
         ax.set_xlabel("step", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.legend(fontsize=6)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
 
 
 def report(run: Path, figure: Path | None, console: Console) -> Path | None:

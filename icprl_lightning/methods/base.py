@@ -21,7 +21,14 @@ from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
 from icprl_lightning.models.normalization import InputNormalizer
 from icprl_lightning.models.policy import LAYOUTS, InContextPolicy
 from icprl_lightning.samples import Samples
-from icprl_lightning.validation import check_choice, check_int, check_kind, check_optimizer, check_sizes
+from icprl_lightning.validation import (
+    check_bool,
+    check_choice,
+    check_int,
+    check_kind,
+    check_optimizer,
+    check_sizes,
+)
 
 
 def fit_input_normalizers(module: L.LightningModule) -> None:
@@ -73,13 +80,14 @@ class InContextModule(L.LightningModule):
         owner = type(self).__name__
         check_kind(owner, "context_kind", context_kind)
         check_sizes(owner, state_dim, action_dim)
+        check_bool(owner, "discrete", discrete)
         check_int(owner, "max_context", max_context, 1)
         check_optimizer(owner, lr, weight_decay)
         check_choice(owner, "lr_schedule", lr_schedule, LR_SCHEDULES)
         check_int(owner, "warmup_steps", warmup_steps, 0)
         if queries_per_context is not None:
             check_int(owner, "queries_per_context", queries_per_context, 1)
-        check_choice(owner, "normalize_inputs", normalize_inputs, (True, False))
+        check_bool(owner, "normalize_inputs", normalize_inputs)
         check_choice(owner, "layout", layout, LAYOUTS)
         super().__init__()
         self.backbone = save_backbone(self, backbone)

@@ -43,8 +43,6 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any, NoReturn
 
-import yaml
-
 from icprl_lightning.reproduce.tables import (
     ADEvaluation,
     Evaluation,
@@ -54,6 +52,7 @@ from icprl_lightning.reproduce.tables import (
     needed_runs,
     stages,
 )
+from icprl_lightning.untrusted import UntrustedFileError, read_yaml
 
 EXPERIMENTS = Path("configs/experiment")  # relative to the working directory, as every config path of a table
 ACTS = {"greedy": ("--greedy",), "sample": ("--sample",)}
@@ -86,7 +85,7 @@ def load_table(source: str | Path, folder: Path = EXPERIMENTS) -> Table:
     """The table named ``source`` in ``folder``, or the one of the experiment file at path ``source``
     (``*.yaml``); every config and overlay it names must exist (paths relative to the working directory)."""
     path = Path(source) if str(source).endswith((".yaml", ".yml")) else folder / f"{source}.yaml"
-    if not path.is_file():
+    if not path.exists():
         if path.suffix and Path(source).suffix:
             raise TableError(f"{path}: no such experiment file")
         names = table_names(folder)
@@ -96,9 +95,9 @@ def load_table(source: str | Path, folder: Path = EXPERIMENTS) -> Table:
         hint = f"did you mean {close[0]!r}? " if close else ""
         raise TableError(f"no table {source!r} in {folder}/; {hint}its tables: {', '.join(names)}")
     try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        raise TableError(f"{path}: not YAML ({e})".replace("\n", " ")) from None
+        data = read_yaml(path, "experiment file")
+    except UntrustedFileError as e:
+        raise TableError(str(e)) from None
     return _Reader(path, folder).table(data)
 
 
@@ -304,9 +303,9 @@ class _Reader:
     def overlay_flags(self, where: str, overlay: str) -> list[str]:
         """The flags of a values-only overlay: one per leaf, its dotted path, in the file's order."""
         try:
-            data = yaml.safe_load(Path(overlay).read_text())
-        except yaml.YAMLError as e:
-            self.fail(where, f"{overlay} is not YAML ({e})".replace("\n", " "))
+            data = read_yaml(overlay, "config overlay")
+        except UntrustedFileError as e:
+            self.fail(where, str(e))
         flags: list[str] = []
 
         def walk(node: Any, keys: tuple[str, ...]) -> None:
@@ -387,6 +386,8 @@ class _Reader:
             if "options" in data:
                 self.fail(f"{where}.options", "options are an evaluation's: name it with evaluation: NAME")
             return ()
+        import yaml
+
         from icprl_lightning.registry import EVALUATIONS
 
         name = self.text(f"{where}.evaluation", data["evaluation"])

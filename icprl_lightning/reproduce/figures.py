@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from icprl_lightning.evaluation.report import figure_title
 from icprl_lightning.families.base import QUALITIES
+from icprl_lightning.io import save_figure
 from icprl_lightning.reproduce.tables import Table
 
 if TYPE_CHECKING:
@@ -45,7 +46,7 @@ def lambda_beta_figure(table: Table, out_dir: Path) -> None:
     axes[-1].legend(fontsize=6, bbox_to_anchor=(1.02, 1), loc="upper left")
     fig.suptitle(figure_title(f"{table.title} (corners: 3 training seeds, mean ± sem over seeds; others: 1 seed, "
                               "± sem over held-out goals)", fig.get_figwidth()), fontsize=9)
-    fig.savefig(out_dir / f"{table.name}.png", dpi=120)
+    save_figure(fig, out_dir / f"{table.name}.png", dpi=120)
 
 
 def teacher_noise_figure(table: Table, out_dir: Path) -> None:
@@ -74,7 +75,7 @@ def teacher_noise_figure(table: Table, out_dir: Path) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6)
     ax.set_title("ICPO pretrained on a scripted teacher's labels (3 training seeds, mean ± sem)", fontsize=8)
-    fig.savefig(out_dir / f"{table.name}_vs_noise.png", dpi=120)
+    save_figure(fig, out_dir / f"{table.name}_vs_noise.png", dpi=120)
 
 
 def read_ceiling(path: str | Path) -> dict[str, float]:
@@ -130,7 +131,7 @@ def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -
     grid[0][-1].legend(fontsize=7)
     fig.suptitle(figure_title(f"{table.title}: return during training, one line per training seed",
                               fig.get_figwidth()), fontsize=9)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     return fig
 
 

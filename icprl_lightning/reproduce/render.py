@@ -30,7 +30,7 @@ from typing import Any
 import yaml
 
 from icprl_lightning.evaluation.base import KIND, evaluation_of
-from icprl_lightning.io import payloads_in
+from icprl_lightning.io import payloads_in, save_figure, write_atomic
 from icprl_lightning.reproduce.statistics import (
     Scores,
     difference,
@@ -243,7 +243,7 @@ def profile_figure(folder: Path, stem: str, out: Path) -> None:
     axes[0][0].legend(fontsize=7)
     fig.suptitle(f"{payload.get('title', stem)}: performance profile (95% bootstrap bands)")
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
+    save_figure(fig, out, dpi=110)
     plt.close(fig)
 
 
@@ -436,7 +436,7 @@ def render(root: Path = RESULTS, figures: bool = True) -> list[Path]:
     """Write every generated page (and the headline profiles); returns what was written."""
     written = []
     for path, text in rendered(root).items():
-        path.write_text(text)
+        write_atomic(path, text)
         written.append(path)
     if figures:
         for table, stem in PROFILES.items():

@@ -58,6 +58,7 @@ from icprl_lightning.reproduce.tables import (
     slug,
     stages,
 )
+from icprl_lightning.untrusted import UntrustedFileError, read_json
 
 
 class RecordError(ValueError):
@@ -71,8 +72,8 @@ def read_record(path: Path) -> dict | None:
         return None
     fix = "delete it, or pass --refit to train every run again"
     try:
-        record = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        record = read_json(path, "fit record")
+    except UntrustedFileError as e:
         raise RecordError(f"fit record {path} is damaged ({e}); {fix}") from None
     if not isinstance(record, dict):
         raise RecordError(f"fit record {path} is not an icprl reproduce record (a JSON {type(record).__name__}, "

@@ -72,6 +72,25 @@ def test_darkroom_goal_env_passes_check_env_and_matches_the_vector_env():
     assert truncated
 
 
+@pytest.mark.parametrize("action", [5, 9, -1, 2.7, "1", None, True, np.array([1, 2]), np.float32(1.0)])
+def test_darkroom_goal_env_refuses_an_action_outside_its_space(action):
+    env = DarkRoomGoalEnv(DarkRoomFamily(), DarkRoomFamily().test_goals[0])
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action must be an integer move in \[0, 5\)"):
+        env.step(action)
+    for good in (0, 4, np.int64(3), np.array(2)):  # what the space contains is taken
+        env.step(good)
+
+
+@pytest.mark.parametrize("action", [[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0, 0.0], np.full(4, np.inf), 0.5])
+def test_reach_goal_env_refuses_a_non_finite_or_misshapen_action(action):
+    env = ReachGoalEnv(GOALS, horizon=4)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action must be 4 finite numbers"):
+        env.step(action)
+    env.step(np.full(4, 2.0))  # out of range: clipped, as before
+
+
 # --- SAC oracle -------------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

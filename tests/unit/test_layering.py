@@ -22,9 +22,9 @@ PACKAGE = REPO / "icprl_lightning"
 
 # lowest first; a module's layer is the first entry its dotted name starts with
 LAYERS = [
-    ("contexts", "preferences", "io", "metrics", "validation",   # ground: shared vocabulary, argument checks,
+    ("contexts", "preferences", "io", "untrusted", "metrics", "validation",  # ground: shared vocabulary, checks,
      "progress", "data_contract", "samples", "registry"),         # progress lines, what a DataModule serves,
-                                                                  # typed training samples, the method registry
+                                                                  # typed training samples, the registries
     ("sb3",),                                       # SB3 agents evaluated while they train (oracle, baselines)
     ("families",),                                  # task families, their envs and oracles
     ("annotators",),                                # who labels a pair (sees the oracle's utilities)

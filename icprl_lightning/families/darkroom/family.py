@@ -24,7 +24,7 @@ from icprl_lightning.families.calibration import invert_quality_curve
 from icprl_lightning.families.darkroom.env import N_ACTIONS, DarkRoomState, DarkRoomVectorEnv, step_reward, transition
 from icprl_lightning.families.darkroom.oracle import DarkRoomOracle, optimal_value
 from icprl_lightning.metrics import mean_sem, per_task_mean
-from icprl_lightning.validation import HyperparameterError, check_int
+from icprl_lightning.validation import HyperparameterError, check_bool, check_int
 
 
 @dataclass(frozen=True)
@@ -50,6 +50,7 @@ class DarkRoomFamily(TaskFamily):
         check_int("DarkRoomFamily", "horizon", self.horizon, 1)
         check_int("DarkRoomFamily", "n_train_tasks", self.n_train_tasks, 1)
         check_int("DarkRoomFamily", "n_test_tasks", self.n_test_tasks, 1)
+        check_bool("DarkRoomFamily", "terminate_on_goal", self.terminate_on_goal)
         if self.n_train_tasks + self.n_test_tasks > self.size**2:
             raise HyperparameterError(
                 f"DarkRoomFamily: n_train_tasks + n_test_tasks must be <= size**2 = {self.size**2}: "

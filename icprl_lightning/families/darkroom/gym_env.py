@@ -47,6 +47,9 @@ class DarkRoomGoalEnv(gym.Env):
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self.t >= self.family.horizon:
             raise RuntimeError("episode is over (horizon reached or never reset): call reset()")
+        if isinstance(action, bool | np.bool_) or not self.action_space.contains(action):
+            raise ValueError(f"action must be an integer move in [0, {self.action_space.n}) (stay, up, down, left, "
+                             f"right), got {action!r}")
         self.state = transition(self.state, np.asarray(action, dtype=np.int64), self.family.size)
         reward = float(step_reward(self.state, self.goal))
         self.t += 1

@@ -80,7 +80,11 @@ class ReachGoalEnv(gym.Env):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self.t >= self.horizon:
             raise RuntimeError("episode is over (horizon reached or never reset): call reset()")
-        obs, *_ = self._env.step(np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0))
+        move = np.asarray(action, dtype=np.float64)
+        if move.shape != self.action_space.shape or not np.isfinite(move).all():
+            raise ValueError(f"action must be {self.action_space.shape[0]} finite numbers (clipped to [-1, 1]), "
+                             f"got {action!r}")
+        obs, *_ = self._env.step(np.clip(move, -1.0, 1.0))
         self._raw_obs = obs
         self.t += 1
         reward = float(latent_reward(self._env.tcp_center, self.goal))
