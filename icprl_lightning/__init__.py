@@ -32,6 +32,10 @@ _EXPORTS = {
     "StepPreferenceContext": "icprl_lightning.contexts",
     "TrajectoryPreferenceContext": "icprl_lightning.contexts",
 }
+# ``import icprl_lightning`` registers the Gymnasium ids (icprl/DarkRoom-v0, icprl/MetaWorldReach-v0): their entry
+# points are strings, so this imports Gymnasium and numpy only, never torch or MuJoCo
+from icprl_lightning.families import registration as _registration  # noqa: E402, F401
+
 __all__ = ["Agent", "OnlineAgent", "RewardContext", "RewardTrajectoryContext", "StepPreferenceContext",
            "TrajectoryPreferenceContext", "load_agent"]
 
