@@ -38,8 +38,9 @@ def test_registering_imports_neither_torch_nor_mujoco_and_is_idempotent():
     assert out.stdout.strip() == "['icprl/DarkRoom-v0', 'icprl/MetaWorldReach-v0'] []"
 
 
-def test_importing_the_package_registers_the_ids_without_torch():
-    code = ("import sys, gymnasium as gym, icprl_lightning\n"
+@pytest.mark.parametrize("imports", ["gymnasium as gym, icprl_lightning", "icprl_lightning, gymnasium as gym"])
+def test_importing_the_package_registers_the_ids_without_torch(imports):
+    code = (f"import sys, {imports}\n"
             "print(sorted(i for i in gym.registry if i.startswith('icprl/')), "
             "[m for m in ('torch', 'mujoco', 'metaworld', 'lightning') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
