@@ -275,13 +275,20 @@ def run_cli(args: list[str], run: bool = True) -> ICPRLCLI:
     wandb = sys.modules.get("wandb")  # a W&B run left by an earlier fit in this process: WandbLogger would reuse it
     if wandb is not None and getattr(wandb, "run", None) is not None:
         wandb.finish()
-    return ICPRLCLI(L.LightningModule, L.LightningDataModule, subclass_mode_model=True, subclass_mode_data=True,
-                    save_config_callback=SaveConfigToRun,
-                    # the DataModule shards its rows itself under several processes (data/datamodule.py)
-                    # Lightning's bar only in a terminal: in a log, TrainingProgress prints plain lines instead
-                    trainer_defaults={**TRAINER_DEFAULTS, "callbacks": default_callbacks(),
-                                      "use_distributed_sampler": False, "enable_progress_bar": is_terminal()},
-                    args=args, run=run, parser_kwargs=PARSER_KWARGS)
+    verbose = os.environ.get("ICPRL_VERBOSE", "") not in ("", "0")  # cli.py sets it for --verbose
+    cli = ICPRLCLI(L.LightningModule, L.LightningDataModule, subclass_mode_model=True, subclass_mode_data=True,
+                   save_config_callback=SaveConfigToRun,
+                   # the DataModule shards its rows itself under several processes (data/datamodule.py)
+                   # Lightning's bar only in a terminal: in a log, TrainingProgress prints plain lines instead;
+                   # the model summary with --verbose only (a config may still ask for it)
+                   trainer_defaults={**TRAINER_DEFAULTS, "callbacks": default_callbacks(),
+                                     "use_distributed_sampler": False, "enable_progress_bar": is_terminal(),
+                                     "enable_model_summary": verbose},
+                   args=args, run=run, parser_kwargs=PARSER_KWARGS)
+    wandb = sys.modules.get("wandb")
+    if run and wandb is not None and getattr(wandb, "run", None) is not None:
+        wandb.finish()  # now, not at exit, where W&B's closing lines keep their colour codes in a log
+    return cli
 
 
 # No environment variables are read; errors raise (``parse_arguments`` makes them one line); no option is
