@@ -131,11 +131,11 @@ def _unknown(what: str, name: str, known: dict, where: str, listing: str) -> NoR
     raise SystemExit(2)
 
 
-def run_cli(args: list[str], run: bool = True):
+def run_cli(args: list[str], run: bool = True, verbose: bool | None = None):
     """Parse ``args`` as the command line would be (tests call this) and run the LightningCLI subcommand."""
     from icprl_lightning.trainer_cli import run_cli as run_trainer_cli
 
-    return run_trainer_cli(args, run=run)
+    return run_trainer_cli(args, run=run, verbose=verbose)
 
 
 def _generate(argv: list[str]) -> None:
@@ -187,8 +187,6 @@ def _quiet_dependency_noise(verbose: bool = False) -> None:
 def main(args: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if args is None else args)
     verbose = "--verbose" in argv or os.environ.get(VERBOSE_ENV, "") not in ("", "0")
-    if verbose:
-        os.environ[VERBOSE_ENV] = "1"  # the fit's model summary reads it (trainer_cli.run_cli)
     _quiet_dependency_noise(verbose)
     argv = [a for a in argv if a != "--verbose"]
     if not argv or argv[0] in ("-h", "--help"):
@@ -218,7 +216,7 @@ def main(args: list[str] | None = None) -> None:
         if name == "generate":
             _generate(rest)
         elif not module:
-            run_cli(argv)
+            run_cli(argv, verbose=verbose)
         else:
             getattr(importlib.import_module(module), function)(rest)
     except _user_errors() as e:

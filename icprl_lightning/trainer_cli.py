@@ -261,21 +261,22 @@ class ICPRLCLI(LightningCLI):
         self.check_checkpoint_fits()
 
 
-def run_cli(args: list[str], run: bool = True) -> ICPRLCLI:
+def run_cli(args: list[str], run: bool = True, verbose: bool | None = None) -> ICPRLCLI:
     """Parse ``args`` as the command line would be (tests call this) and run the subcommand.
 
     Every ``fit`` gets its own run directory (``RunDirectory``, also under ``fast_dev_run``, where Lightning
     adds no config callback), holding its ``config.yaml`` (``SaveConfigToRun``) and checkpoints.
     W&B defaults to offline (``WANDB_MODE=offline``) unless ``WANDB_MODE`` says otherwise, e.g. ``disabled``;
     the configs do not set the logger's ``offline: true``, which Lightning turns into ``WANDB_MODE=dryrun``
-    over a ``disabled`` one.
+    over a ``disabled`` one. ``verbose`` (``icprl --verbose``; None: ``ICPRL_VERBOSE``) shows the model summary.
     """
     warnings.filterwarnings("ignore", message=".*args parameter is intended to run from within Python.*")
     os.environ.setdefault("WANDB_MODE", "offline")
     wandb = sys.modules.get("wandb")  # a W&B run left by an earlier fit in this process: WandbLogger would reuse it
     if wandb is not None and getattr(wandb, "run", None) is not None:
         wandb.finish()
-    verbose = os.environ.get("ICPRL_VERBOSE", "") not in ("", "0")  # cli.py sets it for --verbose
+    if verbose is None:  # icprl --verbose passes it; ICPRL_VERBOSE=1 as for the tracebacks (cli.py)
+        verbose = os.environ.get("ICPRL_VERBOSE", "") not in ("", "0")
     cli = ICPRLCLI(L.LightningModule, L.LightningDataModule, subclass_mode_model=True, subclass_mode_data=True,
                    save_config_callback=SaveConfigToRun,
                    # the DataModule shards its rows itself under several processes (data/datamodule.py)

@@ -74,8 +74,11 @@ def test_the_model_summary_is_shown_with_verbose_only(tmp_path, monkeypatch):
     quiet = icprl_cli.run_cli(args, run=False).trainer
     monkeypatch.setenv(icprl_cli.VERBOSE_ENV, "1")
     verbose = icprl_cli.run_cli(args, run=False).trainer
+    monkeypatch.delenv(icprl_cli.VERBOSE_ENV)
+    flag = icprl_cli.run_cli(args, run=False, verbose=True).trainer  # what icprl --verbose passes
     assert not [c for c in quiet.callbacks if isinstance(c, ModelSummary)]
     assert [c for c in verbose.callbacks if isinstance(c, ModelSummary)]
+    assert [c for c in flag.callbacks if isinstance(c, ModelSummary)]
 
 
 @pytest.mark.slow  # a short fit with W&B offline
