@@ -32,6 +32,8 @@ from icprl_lightning.reproduce.statistics import Scores, difference, scores_of, 
 CLAIMS = Path("docs/claims.yaml")
 # how a column of a results JSON is named in the claims table's header
 COLUMN_NAMES = {"dirichlet": "Dirichlet", "dts": "DTS"}
+# what a set of columns varies, named by its first column
+CONDITIONS = {"low": "the quality of the context", "uniform": "the source of the bandit's context"}
 METRIC_NAMES = {"normalized_return": "normalized return", "weak_regret": "weak regret", "return": "return"}
 
 
@@ -167,8 +169,10 @@ def claims_table(root: Path, path: Path = CLAIMS) -> str:
     for columns, claims in groups(read_claims(path)):
         metrics = {comparisons(root, c, c.a, c.b)[0] for c in claims}
         what = " or ".join(sorted(METRIC_NAMES.get(m, m) for m in metrics))
-        lines += [f"Per {' / '.join(COLUMN_NAMES.get(c, c) for c in columns)}: Δ of the mean {what}, "
-                  "A − B.", "", *short_table(root, columns, claims), ""]
+        kind = CONDITIONS.get(columns[0], "the condition")
+        lines += [f"Columns: {kind} ({' / '.join(COLUMN_NAMES.get(c, c) for c in columns)}). Cells: the verdict, "
+                  f"then Δ of the mean {what} (A − B) with its 95% interval, or each seed's Δ.", "",
+                  *short_table(root, columns, claims), ""]
     return "\n".join(lines)
 
 
