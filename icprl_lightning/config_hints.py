@@ -17,12 +17,12 @@ START = "icprl fit --config configs/smoke.yaml"  # two minutes on 2 CPU cores: t
 
 
 def config_paths(argv: Sequence[str]) -> list[str]:
-    """The values of every ``--config FILE`` / ``--config=FILE`` of ``argv``."""
+    """The values of every ``--config FILE`` / ``--config=FILE`` (or ``-c``) of ``argv``."""
     paths = []
     for i, arg in enumerate(argv):
-        if arg == "--config" and i + 1 < len(argv):
+        if arg in ("--config", "-c") and i + 1 < len(argv):
             paths.append(argv[i + 1])
-        elif arg.startswith("--config="):
+        elif arg.startswith(("--config=", "-c=")):
             paths.append(arg.partition("=")[2])
     return paths
 
@@ -41,7 +41,7 @@ def config_problem(subcommand: str, argv: Sequence[str]) -> str | None:
     if any(a in ("-h", "--help") or a.startswith("--print_config") for a in argv):
         return None
     paths = config_paths(argv)
-    if not paths and not any(a.startswith(("--model", "--data")) for a in argv):
+    if not paths and not any(a.startswith(("--model", "--data", "-c")) for a in argv):
         return (f"no --config given: a config names the method and its data; start with `{START}` "
                 f"(configs/*.yaml are the others; icprl {subcommand} --help lists every option)")
     for path in paths:

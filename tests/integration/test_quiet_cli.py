@@ -31,6 +31,8 @@ def test_no_config_says_how_to_start_and_a_mistyped_one_gets_the_closest():
         "--config configs/icpo_darkrom.yaml: no such file (did you mean 'configs/icpo_darkroom.yaml'?)")
     assert closest_config("configs/paper/icpo_metaword.yaml") == "configs/paper/icpo_metaworld.yaml"
     assert config_problem("fit", ["--config=configs/smoke.yaml"]) is None
+    assert config_problem("fit", ["-c", "configs/smoke.yaml"]) is None
+    assert "did you mean 'configs/smoke.yaml'" in config_problem("validate", ["-c", "configs/smoke.yml"])
     assert config_problem("fit", ["--help"]) is None
     assert config_problem("fit", ["--model", "x", "--data", "y"]) is None  # all on the command line: Lightning's
 
