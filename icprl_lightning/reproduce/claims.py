@@ -117,7 +117,7 @@ class Comparison:
 
 def comparisons(root: Path, claim: Claim, a: str, b: str) -> tuple[str, list[Comparison]]:
     """The metric key and, per column of ``claim``, rows ``a`` against ``b`` of its JSON."""
-    from icprl_lightning.reproduce.render import main_metric
+    from icprl_lightning.reproduce.render import main_metric  # render imports this module: no cycle at load
 
     path = root / claim.table / f"{claim.file}.json"
     payload = json.loads(path.read_text())
