@@ -64,7 +64,8 @@ smoke: $(STAMP)
 	OMP_NUM_THREADS=1 $(BIN)/icprl evaluate --run ICPO=configs/smoke.yaml:$$ckpt --contexts own flipped_labels \
 		--seeds 0 --title "make smoke: ICPO on DarkRoom I-PRL" --out $$run/evaluation > $$run/evaluation.log && \
 	echo "== 3/3 held-out returns of the deployed checkpoint ($$run/evaluation.md, .json, .png) ==" && \
-	cat $$run/evaluation.md
+	cat $$run/evaluation.md && \
+	echo "learning curves: icprl report $$run"
 
 # The fast tier, the developer loop, on two pytest-xdist workers of one thread each; `make test` runs every test
 # in one process, as CI does.
