@@ -74,9 +74,12 @@ def resolve(source: str | Path) -> Path:
         return path
     if text in shipped_models():
         return PRETRAINED / text
+    import difflib
+
     known = ", ".join(shipped_models()) or "none"
-    raise FileNotFoundError(f"{text!r} is neither a checkpoint file, a model directory nor a shipped model "
-                            f"(shipped models: {known})")
+    close = difflib.get_close_matches(text, shipped_models(), n=1)
+    raise FileNotFoundError(f"{text!r} is neither a checkpoint file, a model directory nor a shipped model"
+                            f"{f' (did you mean {close[0]!r}?)' if close else ''}; shipped models: {known}")
 
 
 # ---- loading -------------------------------------------------------------------------------------------------

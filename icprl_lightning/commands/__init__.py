@@ -32,7 +32,8 @@ and always prints the same kind of table.
 
 A user's mistake (an unknown or mistyped key, a value out of range, a bad checkpoint or dataset, a model that
 does not fit the data) is one line on stderr, ``icprl <subcommand>: error: ...``, and exit status 2; the
-traceback is shown only with ``--verbose`` (anywhere on the line) or ``ICPRL_VERBOSE=1``.
+traceback is shown only with ``--verbose`` (anywhere on the line) or ``ICPRL_VERBOSE=1``, which also shows
+Lightning's hardware banner and the model summary of a fit.
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ import importlib
 import os
 import sys
 from typing import NoReturn
+
+from icprl_lightning.commands.config_hints import config_problem
 
 # name -> (module, function, one line of help); an empty module means the LightningCLI (``commands/trainer.py``) or,
 # for a name of GROUPS, the program its second word names
@@ -130,11 +133,11 @@ def _unknown(what: str, name: str, known: dict, where: str, listing: str) -> NoR
     raise SystemExit(2)
 
 
-def run_cli(args: list[str], run: bool = True):
+def run_cli(args: list[str], run: bool = True, verbose: bool | None = None):
     """Parse ``args`` as the command line would be (tests call this) and run the LightningCLI subcommand."""
     from icprl_lightning.commands.trainer import run_cli as run_trainer_cli
 
-    return run_trainer_cli(args, run=run)
+    return run_trainer_cli(args, run=run, verbose=verbose)
 
 
 def _generate(argv: list[str]) -> None:
@@ -162,8 +165,13 @@ def _one_line(error: BaseException) -> str:
     return text or type(error).__name__
 
 
-def _quiet_dependency_noise() -> None:
-    """Silence, each by name, messages of dependencies that a user of ``icprl`` cannot act on."""
+# Lightning's lines that describe the machine, not the run: shown with --verbose only
+BANNER = ("GPU available:", "TPU available:", "HPU available:", "Seed set to ")
+
+
+def _quiet_dependency_noise(verbose: bool = False) -> None:
+    """Silence, each by name, messages of dependencies that a user of ``icprl`` cannot act on, and (unless
+    ``verbose``) Lightning's hardware banner."""
     import logging
     import warnings
 
@@ -171,17 +179,20 @@ def _quiet_dependency_noise() -> None:
     warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)` is deprecated",
                             category=FutureWarning)
 
+    hidden = ("💡 Tip:",) + (() if verbose else BANNER)
+
     class NoTips(logging.Filter):  # Lightning's adverts ("💡 Tip: ... litlogger"), not about this run
         def filter(self, record: logging.LogRecord) -> bool:
-            return not record.getMessage().startswith("💡 Tip:")
+            return not record.getMessage().startswith(hidden)
 
-    logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(NoTips())
+    for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.seed"):
+        logging.getLogger(name).addFilter(NoTips())
 
 
 def main(args: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if args is None else args)
-    _quiet_dependency_noise()
     verbose = "--verbose" in argv or os.environ.get(VERBOSE_ENV, "") not in ("", "0")
+    _quiet_dependency_noise(verbose)
     argv = [a for a in argv if a != "--verbose"]
     if not argv or argv[0] in ("-h", "--help"):
         print(usage())
@@ -202,11 +213,15 @@ def main(args: list[str] | None = None) -> None:
             _unknown("verb", rest[0], GROUPS[name], f"icprl {name}", f"icprl {name} --help")
         module, function, _ = GROUPS[name][rest[0]]
         name, rest = f"{name} {rest[0]}", rest[1:]
+    problem = None if module else config_problem(name, rest)  # before Lightning is imported
+    if problem:
+        sys.stderr.write(f"icprl {name}: error: {problem}\n")
+        raise SystemExit(2)
     try:
         if name == "generate":
             _generate(rest)
         elif not module:
-            run_cli(argv)
+            run_cli(argv, verbose=verbose)
         else:
             getattr(importlib.import_module(module), function)(rest)
     except _user_errors() as e:

@@ -12,28 +12,29 @@ stage, over ``trajectory_data``), ``dit_advantages``, ``dit_weights`` and ``labe
 ``icprl_lightning.data.suites``: evaluation imports data, never the reverse.
 """
 
-from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, diagnose, diagnose_suite
-from icprl_lightning.evaluation.duels import (
-    agent_duels,
-    behavior_duels,
-    curve_mean_sem,
-    dts_duels,
-    evaluate_duels,
-    method_name,
-    regret_curve,
-    seed_mean_curves,
-    summarize_regret,
-)
-from icprl_lightning.evaluation.report import regret_table, results_table
-from icprl_lightning.evaluation.rollout import (
-    episode_stats,
-    rollout_in_context,
-    rollout_seeds,
-    suite_env,
-    summarize,
-)
+from __future__ import annotations
 
+import importlib
+from typing import Any
+
+# public name -> its module, imported on first use (PEP 562): ``icprl report`` reads tables without torch
+_EXPORTS = {
+    **dict.fromkeys(("DIAGNOSTICS", "diagnose", "diagnose_suite"), "diagnostics"),
+    **dict.fromkeys(("agent_duels", "behavior_duels", "curve_mean_sem", "dts_duels", "evaluate_duels", "method_name",
+                     "regret_curve", "seed_mean_curves", "summarize_regret"), "duels"),
+    **dict.fromkeys(("regret_table", "results_table"), "report"),
+    **dict.fromkeys(("episode_stats", "rollout_in_context", "rollout_seeds", "suite_env", "summarize"), "rollout"),
+}
 __all__ = ["DIAGNOSTICS", "agent_duels", "behavior_duels", "curve_mean_sem", "diagnose", "diagnose_suite",
            "dts_duels", "episode_stats", "evaluate_duels", "method_name", "regret_curve", "regret_table",
            "results_table", "rollout_in_context", "rollout_seeds", "seed_mean_curves", "suite_env", "summarize",
            "summarize_regret"]
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'icprl_lightning.evaluation' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"icprl_lightning.evaluation.{module}"), name)
+    globals()[name] = value
+    return value

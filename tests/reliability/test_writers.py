@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from factories import save_untrained
 
+from icprl_lightning.commands.report import main as report_main
 from icprl_lightning.data.importer import import_preferences
 from icprl_lightning.evaluation.report import write_outputs
-from icprl_lightning.commands.report import main as report_main
 from icprl_lightning.hub import export_model
 from icprl_lightning.io import NotReplaceableError, save_figure, write_atomic, write_json_atomic
 from icprl_lightning.methods.icpo import ICPOModule
