@@ -8,6 +8,8 @@
   row's IQM and mean with stratified bootstrap 95% intervals over training seeds × held-out tasks
   (``statistics``), each preference method's context diagnostics right below its own-context row, and the
   probability of improvement between every two trained rows;
+* ``docs/results/darkroom_label_ceiling/summary.md`` — every reader's ceiling of each ``icprl analyze label-ceiling``
+  JSON there (``evaluation/label_ceiling.ceiling_page``);
 * ``docs/results/<table>/<table>_profile.png`` — the performance profile of the headline tables (``PROFILES``);
 * ``docs/results/index.md`` — every table folder that exists, its title, its files and its command;
 * ``docs/RESULTS.md`` — the claims table (``docs/claims.yaml``: each claim names a JSON cell pair) with the
@@ -409,6 +411,7 @@ def pretrained_table() -> str:
 def rendered(root: Path = RESULTS) -> dict[Path, str]:
     """Every generated text page, path -> content (the figures are drawn by ``render``)."""
     from icprl_lightning.evaluation.ad_command import ad_markdown, is_ad_payload
+    from icprl_lightning.evaluation.label_ceiling import ceiling_page
     from icprl_lightning.evaluation.online_bandit import online_bandit_markdown
     from icprl_lightning.evaluation.report import markdown_tables
     from icprl_lightning.reproduce.speed import speed_page
@@ -419,7 +422,7 @@ def rendered(root: Path = RESULTS) -> dict[Path, str]:
             pages[folder / f"{name}.md"] = (ad_markdown if is_ad_payload(payload) else markdown_tables)(payload)
         for name, payload in online_bandit_in(folder):  # the regrets of `icprl evaluate online` on a bandit
             pages[folder / f"{name}.md"] = online_bandit_markdown(payload)
-        page = summary_page(folder) or speed_page(folder)
+        page = summary_page(folder) or speed_page(folder) or ceiling_page(folder)
         if page is not None:
             pages[folder / "summary.md"] = page
     pages[root / "index.md"] = index_page(root, pages)
