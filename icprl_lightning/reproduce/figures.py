@@ -79,19 +79,21 @@ def teacher_noise_figure(table: Table, out_dir: Path) -> None:
 
 
 def read_ceiling(path: str | Path) -> dict[str, float]:
-    """The held-out return a Bayes-optimal reader of the labels reaches, per context quality, from the JSON of
-    ``icprl analyze label-ceiling``; ``ValueError`` naming what is missing when the file is not one."""
-    from icprl_lightning.evaluation.label_ceiling import CEILING
+    """The held-out return a Bayes-optimal reader of the whole context reaches (``CEILING_READER``), per context
+    quality, from the JSON of ``icprl analyze label-ceiling``; ``ValueError`` naming what is missing when the file is
+    not one."""
+    from icprl_lightning.evaluation.label_ceiling import CEILING, CEILING_READER
 
     try:
         payload = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
         raise ValueError(f"{path} is not JSON ({e})") from None
-    ceiling = {q: payload[q][CEILING] for q in QUALITIES
-               if isinstance(payload, dict) and isinstance(payload.get(q), dict) and CEILING in payload[q]}
+    rows = {q: payload[q].get(CEILING_READER) for q in QUALITIES
+            if isinstance(payload, dict) and isinstance(payload.get(q), dict)}
+    ceiling = {q: row[CEILING] for q, row in rows.items() if isinstance(row, dict) and CEILING in row}
     if not ceiling or not all(isinstance(v, int | float) for v in ceiling.values()):
-        raise ValueError(f"{path} holds no numeric {CEILING!r} for any quality ({', '.join(QUALITIES)}): "
-                         "write it with `icprl analyze label-ceiling`")
+        raise ValueError(f"{path} holds no numeric {CEILING_READER}.{CEILING} for any quality "
+                         f"({', '.join(QUALITIES)}): write it with `icprl analyze label-ceiling`")
     return ceiling
 
 
@@ -123,7 +125,7 @@ def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -
                                 label=name if j == 0 else None)
             if quality in ceiling:
                 ax.axhline(ceiling[quality], color="black", linestyle="--", linewidth=1,
-                           label="Bayes-optimal reader of the labels")
+                           label="Bayes-optimal reader of the context")
             ax.set_title(f"{quality} contexts", fontsize=9)
             ax.set_xlabel(x_label)
             ax.grid(alpha=0.3)

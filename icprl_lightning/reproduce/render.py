@@ -8,6 +8,8 @@
   row's IQM and mean with stratified bootstrap 95% intervals over training seeds × held-out tasks
   (``statistics``), each preference method's context diagnostics right below its own-context row, and the
   probability of improvement between every two trained rows;
+* ``docs/results/darkroom_label_ceiling/summary.md`` — every reader's ceiling of each ``icprl analyze label-ceiling``
+  JSON there (``evaluation/label_ceiling.ceiling_page``);
 * ``docs/results/<table>/<table>_profile.png`` — the performance profile of the headline tables (``PROFILES``);
 * ``docs/results/index.md`` — every table folder that exists, its title, its files and its command;
 * ``docs/RESULTS.md`` — the claims table (``claims.py``: each claim of ``docs/claims.yaml`` names a JSON cell
@@ -351,12 +353,13 @@ def folder_tables(folder: Path) -> dict[Path, str]:
 
 def rendered(root: Path = RESULTS) -> dict[Path, str]:
     """Every generated text page, path -> content (the figures are drawn by ``render``)."""
+    from icprl_lightning.evaluation.label_ceiling import ceiling_page
     from icprl_lightning.reproduce.speed import speed_page
 
     pages: dict[Path, str] = {}
     for folder in sorted(p for p in root.iterdir() if p.is_dir()):
         pages.update(folder_tables(folder))
-        page = summary_page(folder) or speed_page(folder)
+        page = summary_page(folder) or speed_page(folder) or ceiling_page(folder)
         if page is not None:
             pages[folder / "summary.md"] = page
     pages[root / "index.md"] = index_page(root, pages)
