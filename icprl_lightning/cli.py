@@ -17,6 +17,7 @@
     icprl oracle train|export ...                 (families/metaworld_reach/sac.py, sac_weights.py)
     icprl baseline sac|dqn ...                                         (baselines/)
     icprl analyze NAME ...                        (evaluation/<name>.py, data/checksums.py)
+    icprl label --session DIR --view VIEW --pairs N [--export OUT]     (commands/label.py, labelling/)
 
 ``fit`` / ``validate`` / ``test`` / ``predict`` / ``generate`` are a LightningCLI (``trainer_cli.py``). The
 other subcommands are plain argparse programs, each a ``main(argv)`` in its own module; ``oracle``,
@@ -62,6 +63,8 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
     "oracle": ("", "", "train the Meta-World Reach SAC oracle, or export its weights for data generation"),
     "baseline": ("", "", "RL from scratch per held-out task (SAC, DQN); tuning of the dueling-bandit baselines"),
     "analyze": ("", "", "measurements beside the tables: reward models, DIT's advantages, label ceiling, checksums"),
+    "label": ("icprl_lightning.commands.label", "main",
+              "a labelling page in the browser for people's preferences, and its answers' export"),
 }
 # group -> verb -> (module, function, one line of help)
 GROUPS: dict[str, dict[str, tuple[str, str, str]]] = {

@@ -1,0 +1,1 @@
+"""Every subcommand's argument parsing and ``main(argv)``; the library modules import no argparse."""
