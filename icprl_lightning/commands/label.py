@@ -56,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.bind((args.host, args.port))
+    sock.listen(128)  # connections wait in the backlog from now on, before uvicorn accepts them
     host, port = sock.getsockname()
     app = make_app(session, token, LOOPBACK if args.host == "127.0.0.1" else [*LOOPBACK, args.host])
     done, total = len(session.log.answers), len(session.pair_ids)

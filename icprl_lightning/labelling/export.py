@@ -3,7 +3,8 @@
     OUT/answers.jsonl         every answer that counts (undone ones left out), one line each: annotator, pair,
                               label, response_ms, time, task_index, row (the pair's row in the queue)
     OUT/agreement.json        per annotator: counts, agreement with the latent ordering and with each other
-    OUT/dataset/              the decided answers as a recorded-preference dataset (``icprl import``'s layout;
+    OUT/dataset/              the decided answers as a recorded-preference dataset (``icprl import``'s layout, its
+                              ``source_row`` the answer's line in answers.jsonl;
                               ``icprl fit --config configs/recorded_icpo.yaml --data.init_args.data_dir OUT/dataset``)
     OUT/trl_rows.parquet      the decided answers as TRL chosen/rejected rows (``icprl import --format trl``)
     OUT/imitation_pairs.npz   every first / second / equal answer as imitation's segment pairs, ``label`` the
@@ -63,6 +64,8 @@ def export(session: Session, out: str | Path, overwrite: bool = False, val_fract
                        session.arrays["utility_second"])
     write_json_atomic(out / "agreement.json", report)
     source = session.source
+    for line, a in enumerate(answers):
+        a["line"] = line  # the dataset's ``source_row``
     soft = [a for a in answers if a["label"] in SOFT]
     hard = [a for a in soft if a["label"] != "equal"]
     written = {"answers": len(answers), "decided": len(hard), "ties": len(soft) - len(hard),
@@ -76,7 +79,7 @@ def export(session: Session, out: str | Path, overwrite: bool = False, val_fract
         arrays["task_index"] = session.arrays["task_index"][rows]
         size = {"n_actions": source.action_size} if source.discrete else {"action_dim": source.action_size}
         import_preferences(arrays, out / "dataset", kind=source.kind, val_fraction=val_fraction, seed=seed,
-                           overwrite=True, source_rows=rows, **size,
+                           overwrite=True, source_rows=np.array([a["line"] for a in hard]), **size,
                            origin={"format": "icprl label", "session": str(session.path),
                                    "ties_left_out": written["ties"], "skips_left_out": written["skips"]})
         _write_trl(arrays, first, source.kind, out / "trl_rows.parquet")

@@ -47,11 +47,20 @@ function drawDarkroomSteps(p) {
   const px = 44, svg = panel("the agent (black) and its two moves", p.size * px, p.size * px);
   const at = grid(svg, p.size, px);
   goalMark(svg, at(p.goal), px);
-  [[p.first, "first", -0.12], [p.second, "second", 0.12]].forEach(([a, cls, off], k) => {
-    const [dx, dy] = MOVES[a], from = at(p.cell, off), to = at([p.cell[0] + dx * 0.85, p.cell[1] + dy * 0.85], off);
-    if (a === 4) el(svg, "circle", {class: cls, cx: from[0], cy: from[1], r: px * 0.42, fill: "none", "stroke-width": 4});
-    else el(svg, "line", {class: cls, x1: from[0], y1: from[1], x2: to[0], y2: to[1], "stroke-width": 6});
-    el(svg, "text", {class: cls, x: to[0] + 4, y: to[1] - 4, "font-size": 16}, String(k + 1));
+  [[p.first, "first", -0.15], [p.second, "second", 0.15]].forEach(([a, cls, off], k) => {
+    const [dx, dy] = MOVES[a], from = at(p.cell, off), to = at([p.cell[0] + dx, p.cell[1] + dy], off);
+    if (a === 4) {  // stay: a ring around the agent
+      const c = at(p.cell);
+      el(svg, "circle", {class: cls, cx: c[0], cy: c[1], r: px * (0.3 + 0.08 * k), style: "fill:none", "stroke-width": 4});
+      el(svg, "text", {class: cls, x: from[0] + px * 0.4, y: from[1] - px * 0.3, "font-size": 18}, String(k + 1));
+      return;
+    }
+    const ux = (to[0] - from[0]) / px, uy = (to[1] - from[1]) / px, head = px * 0.3;  // unit direction
+    el(svg, "line", {class: cls, x1: from[0], y1: from[1], x2: to[0] - ux * head, y2: to[1] - uy * head, "stroke-width": 6});
+    el(svg, "polygon", {class: cls, points: [to, [to[0] - ux * head - uy * head / 2, to[1] - uy * head + ux * head / 2],
+                                             [to[0] - ux * head + uy * head / 2, to[1] - uy * head - ux * head / 2]]
+                                             .map(q => q.join(",")).join(" ")});
+    el(svg, "text", {class: cls, x: to[0] + 6 * Math.abs(uy) + 4, y: to[1] - 6 * Math.abs(ux) - 4, "font-size": 18}, String(k + 1));
   });
   const c = at(p.cell);
   el(svg, "circle", {cx: c[0], cy: c[1], r: 7, fill: "#000"});
@@ -59,12 +68,14 @@ function drawDarkroomSteps(p) {
 }
 
 function drawDarkroomTrajectories(p) {
-  const px = 44, svg = panel("two episodes (1 blue, 2 orange), replayed step by step", p.size * px, p.size * px);
+  const px = 44, svg = panel("two episodes (1 blue, 2 orange; squares: start), replayed step by step", p.size * px, p.size * px);
   const at = grid(svg, p.size, px);
   goalMark(svg, at(p.goal), px);
   const dots = [];
   [[p.first, "first", -0.12], [p.second, "second", 0.12]].forEach(([path, cls, off]) => {
     el(svg, "polyline", {class: `path ${cls}`, points: path.map(c => at(c, off).join(",")).join(" ")});
+    const s = at(path[0], off);
+    el(svg, "rect", {class: cls, x: s[0] - 6, y: s[1] - 6, width: 12, height: 12});
     dots.push([el(svg, "circle", {class: `dot ${cls}`, r: 8}), path, off]);
   });
   const label = el(svg, "text", {x: 4, y: 14, "font-size": 12}, "");
