@@ -2,7 +2,7 @@
 
     icprl label --session labels/dr --view darkroom_trajectories --pairs 50 [--seed 0] [--port 8765]
     icprl label --session labels/dr                      (reopen: the same queue, the answers so far)
-    icprl label --session labels/dr --export out/dr [--overwrite]
+    icprl label --session labels/dr --export out/dr [--ties soft|drop] [--overwrite]
 
 Serving prints the page's address with a fresh token (``http://127.0.0.1:PORT/?token=...``); open it, add
 ``&annotator=NAME`` or type a name, and answer with the keys 1 / 2 / e / s (undo: u). ``--port 0`` picks a free
@@ -31,6 +31,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=int, default=8765, help="port to bind (0: any free port)")
     p.add_argument("--export", metavar="OUT", help="write the answers to OUT instead of serving")
     p.add_argument("--overwrite", action="store_true", help="with --export: replace OUT's files")
+    p.add_argument("--ties", choices=("soft", "drop"), default="soft",
+                   help="with --export: keep ties in the dataset as 0.5 (ICPO, RewardGen) or leave them out")
     return p
 
 
@@ -43,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.export:
             from icprl_lightning.labelling.export import export
 
-            print(json.dumps(export(session, args.export, args.overwrite)))
+            print(json.dumps(export(session, args.export, args.overwrite, args.ties)))
             return 0
         lock = hold_lock(args.session)
     except ValueError as e:

@@ -3,8 +3,8 @@
     OUT/answers.jsonl         every answer that counts (undone ones left out), one line each: annotator, pair,
                               label, response_ms, time, task_index, row (the pair's row in the queue)
     OUT/agreement.json        per annotator: counts, agreement with the latent ordering and with each other
-    OUT/dataset/              the decided answers as a recorded-preference dataset (``icprl import``'s layout, its
-                              ``source_row`` the answer's line in answers.jsonl;
+    OUT/dataset/              the first / second / equal answers as a recorded-preference dataset (``icprl
+                              import``'s layout, its ``source_row`` the answer's line in answers.jsonl;
                               ``icprl fit --config configs/recorded_icpo.yaml --data.init_args.data_dir OUT/dataset``)
     OUT/trl_rows.parquet      the decided answers as TRL chosen/rejected rows (``icprl import --format trl``)
     OUT/imitation_pairs.npz   every first / second / equal answer as imitation's segment pairs, ``label`` the
@@ -12,9 +12,13 @@
                               (``icprl import --format bpref``); a step pair is a segment of one step
 
 One row per (annotator, pair) answer: two people's answers to one pair are two rows. A skipped pair is in no
-dataset (nothing was said about it). A tie (equal) is kept as 0.5 where the format has a soft label (the
-imitation rows); TRL rows and our recorded dataset hold 0/1 labels, so their ties are left out and counted in
-the dataset manifest's ``origin``. The goal and the latent utilities stay in the session: no exported
+dataset (nothing was said about it). A tie (equal) is the label 0.5 end to end (``ties="soft"``, the default):
+in the imitation rows and in the dataset, whose manifest then says ``soft_labels`` and whose labels are
+float32; ICPO and RewardGen train on it (a tie scores both orders equally), every other method refuses it
+before training (``validation.pairing_errors``). ``ties="drop"`` leaves ties out of the dataset (0/1 labels
+that every method takes). TRL rows have no tie (a row names its winner by its column): they hold the decided
+answers only. Bandit duels have no state, which the dataset (and a TRL prompt) needs: their answers are in
+answers.jsonl and the imitation rows only. The goal and the latent utilities stay in the session: no exported
 context carries them (the dataset holds states, actions, labels and the task's index only).
 """
 
@@ -32,6 +36,7 @@ from icprl_lightning.labelling.agreement import agreement
 from icprl_lightning.labelling.session import Session
 
 SOFT = {"first": 1.0, "second": 0.0, "equal": 0.5}
+TIES = ("soft", "drop")
 
 
 def counted_answers(session: Session) -> list[dict[str, Any]]:
@@ -50,9 +55,11 @@ def _rows(session: Session, rows: np.ndarray) -> dict[str, np.ndarray]:
     return {k: session.arrays[k][rows] for k in KINDS[session.source.kind] if k != "preferred"}
 
 
-def export(session: Session, out: str | Path, overwrite: bool = False, val_fraction: float = 0.2,
+def export(session: Session, out: str | Path, overwrite: bool = False, ties: str = "soft", val_fraction: float = 0.2,
            seed: int = 0) -> dict[str, Any]:
     """Write ``out`` (module docstring); returns what was written, with the counts."""
+    if ties not in TIES:
+        raise ValueError(f"ties must be one of {list(TIES)}, got {ties!r}")
     out = Path(out)
     if out.exists() and any(out.iterdir()) and not overwrite:
         raise ValueError(f"{out} is not empty; pass --overwrite to replace its files")
@@ -70,19 +77,27 @@ def export(session: Session, out: str | Path, overwrite: bool = False, val_fract
     hard = [a for a in soft if a["label"] != "equal"]
     written = {"answers": len(answers), "decided": len(hard), "ties": len(soft) - len(hard),
                "skips": sum(a["label"] == "skip" for a in answers)}
-    if hard:
-        rows = np.array([a["row"] for a in hard])
+    labelled = soft if ties == "soft" else hard
+    if source.stateless:  # a duel has no state, and a recorded dataset (like a TRL prompt) needs one
+        labelled = hard = []
+        written["dataset"] = "not written: bandit duels have no state (answers.jsonl and the imitation rows hold them)"
+    if labelled:
+        rows = np.array([a["row"] for a in labelled])
         arrays = _rows(session, rows)
-        first = np.array([a["label"] == "first" for a in hard])
-        label_shape = (len(rows), 1) if source.kind == "step_preference" else (len(rows),)
-        arrays["preferred"] = first.astype(np.uint8).reshape(label_shape)
+        label = np.array([SOFT[a["label"]] for a in labelled], dtype=np.float32)
+        arrays["preferred"] = label.reshape((len(rows), 1) if source.kind == "step_preference" else (len(rows),))
         arrays["task_index"] = session.arrays["task_index"][rows]
         size = {"n_actions": source.action_size} if source.discrete else {"action_dim": source.action_size}
         import_preferences(arrays, out / "dataset", kind=source.kind, val_fraction=val_fraction, seed=seed,
-                           overwrite=True, source_rows=np.array([a["line"] for a in hard]), **size,
-                           origin={"format": "icprl label", "session": str(session.path),
-                                   "ties_left_out": written["ties"], "skips_left_out": written["skips"]})
-        _write_trl(arrays, first, source.kind, out / "trl_rows.parquet")
+                           overwrite=True, source_rows=np.array([a["line"] for a in labelled]), **size,
+                           soft_labels=bool(written["ties"]) and ties == "soft",
+                           origin={"format": "icprl label", "session": str(session.path), "ties": ties,
+                                   "ties_left_out": 0 if ties == "soft" else written["ties"],
+                                   "skips_left_out": written["skips"]})
+    if hard:
+        rows = np.array([a["row"] for a in hard])
+        arrays = {**_rows(session, rows), "task_index": session.arrays["task_index"][rows]}
+        _write_trl(arrays, np.array([a["label"] == "first" for a in hard]), source.kind, out / "trl_rows.parquet")
     if soft:
         rows = np.array([a["row"] for a in soft])
         arrays = _rows(session, rows)

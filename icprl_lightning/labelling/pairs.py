@@ -38,6 +38,7 @@ class PairSource:
     kind: ClassVar[str]  # the recorded-preference kind an export writes (``data/importer.py`` KINDS)
     discrete: ClassVar[bool] = True
     action_size: ClassVar[int]
+    stateless: ClassVar[bool] = False  # no state to store (a duel): no recorded dataset is exported
 
     def build(self, n: int, seed: int) -> dict[str, np.ndarray]:
         raise NotImplementedError
@@ -125,6 +126,7 @@ class ReachTrajectories(TrajectoryPairs):
 class BanditDuels(PairSource):
     kind = "step_preference"
     action_size = 20
+    stateless = True
 
     def build(self, n: int, seed: int) -> dict[str, np.ndarray]:
         from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily

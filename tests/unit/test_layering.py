@@ -34,9 +34,11 @@ LAYERS = [
                                                     # allow-list of names, imported by importlib, not statically)
     ("methods",),                                   # LightningModules
     ("evaluation",),                                # rollouts and duels through the Agent
+    ("labelling",),                                 # the labelling page's server, answer log and export
     ("callbacks",),
     ("baselines",),                                 # SB3 from scratch
-    ("cli", "trainer_cli", "reproduce", "__init__"),  # the commands (reproduce runs `icprl fit` and `evaluate`)
+    ("cli", "trainer_cli", "reproduce", "__init__",  # the commands (reproduce runs `icprl fit` and `evaluate`)
+     "commands"),
 ]
 REWARD_FREE = ("models", "methods", "deploy", "online")
 FORBIDDEN_FOR_REWARD_FREE = ("families", "annotators", "data")
