@@ -80,12 +80,14 @@ def check_export(session, out):
     rows = {k: np.concatenate([dataset[s][k] for s in ("train", "val")]) for k in dataset["train"]}
     assert set(rows) == {"states_a", "actions_a", "states_b", "actions_b", "preferred", "task_index", "source_row"}
     decided = [a for a in answers if a["label"] in ("first", "second")]
-    assert sorted(rows["source_row"].tolist()) == sorted(answers.index(a) for a in decided)
+    soft = [a for a in answers if a["label"] != "skip"]
+    assert dataset.manifest["config"]["soft_labels"] is True
+    assert sorted(rows["source_row"].tolist()) == sorted(answers.index(a) for a in soft)
     for j, line in enumerate(rows["source_row"]):
         a, q = answers[line], answers[line]["row"]
         for field in ("states_a", "actions_a", "states_b", "actions_b"):
             np.testing.assert_array_equal(rows[field][j], queue[field][q])
-        assert rows["preferred"][j] == (a["label"] == "first")
+        assert rows["preferred"][j] == {"first": 1.0, "second": 0.0, "equal": 0.5}[a["label"]]
         assert rows["task_index"][j] == queue["task_index"][q] == a["task_index"]
     trl = pq.read_table(out / "trl_rows.parquet").to_pydict()
     assert len(trl["chosen"]) == len(decided)
@@ -93,7 +95,6 @@ def check_export(session, out):
         win, lose = ("_a", "_b") if a["label"] == "first" else ("_b", "_a")
         np.testing.assert_array_equal(chosen["states"], queue["states" + win][a["row"]])
         np.testing.assert_array_equal(rejected["actions"], queue["actions" + lose][a["row"]])
-    soft = [a for a in answers if a["label"] != "skip"]
     with np.load(out / "imitation_pairs.npz") as z:
         assert z["label"].tolist() == [{"first": 1.0, "second": 0.0, "equal": 0.5}[a["label"]] for a in soft]
         np.testing.assert_array_equal(z["states_2"], queue["states_b"][[a["row"] for a in soft]])
