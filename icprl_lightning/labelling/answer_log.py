@@ -45,6 +45,7 @@ class AnswerLog:
     pair_ids: list[str]
     answers: dict[str, list[dict[str, Any]]] = field(default_factory=dict)  # annotator -> answers that count
     nonces: set[str] = field(default_factory=set)
+    frozen: dict[str, int] = field(default_factory=dict)  # annotator -> answers already used (not undoable)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     @classmethod
@@ -88,8 +89,8 @@ class AnswerLog:
     def undo(self, annotator: str, nonce: str) -> dict[str, Any]:
         with self.lock:
             self._check_nonce(nonce)
-            if not self.answers.get(annotator):
-                raise Refused(f"annotator {annotator!r} has no answer to undo", 409)
+            if len(self.answers.get(annotator, [])) <= self.frozen.get(annotator, 0):
+                raise Refused(f"annotator {annotator!r} has no answer to undo (answers an agent has used stay)", 409)
             return self._append({"event": "undo", "annotator": annotator,
                                  "pair": self.answers[annotator][-1]["pair"], "nonce": nonce})
 

@@ -87,7 +87,9 @@ def make_app(session: Session, token: str, allowed_hosts: list[str] | None = Non
 
     def pair_payload(annotator: str) -> dict[str, Any]:
         pair = session.log.current(annotator)
-        shown = {"done": True} if pair is None else session.show(pair)
+        # an open-ended session (an online agent's questions) is waiting, not done, when all are answered
+        shown = ({"done": True, "waiting": getattr(session, "open_ended", False)} if pair is None
+                 else session.show(pair))
         return {**shown, "progress": list(session.log.progress(annotator))}
 
     async def guarded(request: Request, handle: Any) -> Any:

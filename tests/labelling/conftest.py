@@ -17,6 +17,12 @@ FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-ne
 URL = re.compile(r"(http://127\.0\.0\.1:\d+/\?token=[A-Za-z0-9_-]+)")
 
 
+@pytest.fixture
+def screenshots(tmp_path) -> Path:
+    """Where the browser tests put their screenshots: ``ICPRL_LABEL_SCREENSHOTS`` (docs/figures) or ``tmp_path``."""
+    return Path(os.environ.get("ICPRL_LABEL_SCREENSHOTS", str(tmp_path)))
+
+
 @pytest.fixture(scope="module")
 def browser():
     """Headless system Chromium; the test skips, saying why, where it or Playwright is missing."""

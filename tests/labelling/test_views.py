@@ -3,8 +3,6 @@ screenshot: ``ICPRL_LABEL_SCREENSHOTS=docs/figures pytest tests/labelling/test_v
 
 from __future__ import annotations
 
-import os
-
 import pytest
 
 # view -> (CSS selector of what must be drawn, how many, words the legend holds)
@@ -17,7 +15,7 @@ VIEWS = {
 
 
 @pytest.mark.parametrize("view", sorted(VIEWS))
-def test_each_view_is_drawn_from_local_assets(browser, servers, tmp_path, view):
+def test_each_view_is_drawn_from_local_assets(browser, servers, tmp_path, screenshots, view):
     selector, count, words = VIEWS[view]
     server = servers("--session", str(tmp_path / view), "--view", view, "--pairs", "3", "--seed", "1")
     page = browser.new_page(viewport={"width": 1000, "height": 700})
@@ -31,5 +29,4 @@ def test_each_view_is_drawn_from_local_assets(browser, servers, tmp_path, view):
     origin = server.url.split("/?")[0]
     assert requested and all(url.startswith(origin + "/") for url in requested), requested
     page.wait_for_timeout(700)  # the episodes' replay moves on a few steps
-    out = os.environ.get("ICPRL_LABEL_SCREENSHOTS", str(tmp_path))
-    page.screenshot(path=os.path.join(out, f"label_{view}.png"))
+    page.screenshot(path=screenshots / f"label_{view}.png")

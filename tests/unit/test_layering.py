@@ -33,8 +33,8 @@ LAYERS = [
     ("deploy", "checkpoints", "online", "hub"),     # Agent / load_agent; safe checkpoint files (methods by an
                                                     # allow-list of names, imported by importlib, not statically)
     ("methods",),                                   # LightningModules
+    ("labelling",),                                 # the labelling page's server, answer log, export, online page
     ("evaluation",),                                # rollouts and duels through the Agent
-    ("labelling",),                                 # the labelling page's server, answer log and export
     ("callbacks",),
     ("baselines",),                                 # SB3 from scratch
     ("cli", "trainer_cli", "reproduce", "__init__",  # the commands (reproduce runs `icprl fit` and `evaluate`)

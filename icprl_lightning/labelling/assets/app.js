@@ -26,7 +26,12 @@ function render(p) {
   document.getElementById("fill").style.width = `${100 * done / total}%`;
   document.getElementById("count").textContent = `${done} / ${total}`;
   document.getElementById("status").textContent = "";
-  if (p.done) {
+  if (p.done && p.waiting) {  // an online agent: its next question comes when it reaches its next query step
+    document.getElementById("view").replaceChildren();
+    document.getElementById("question").textContent = `${done} answered. Waiting for the agent's next question…`;
+    document.getElementById("legend").textContent = "";
+    setTimeout(async () => { if (!busy && shown === p) render(await call("/api/pair")); }, 300);
+  } else if (p.done) {
     document.getElementById("view").replaceChildren();
     document.getElementById("question").textContent = `All ${total} pairs answered. Thank you.`;
     document.getElementById("legend").textContent = "";

@@ -43,13 +43,10 @@ function animate(steps, frame) {  // replay the episodes' steps, looping, one ev
   animation = setInterval(() => { frame(h); h = (h + 1) % steps; }, 60);
 }
 
-function drawDarkroomSteps(p) {
-  const px = 44, svg = panel("the agent (black) and its two moves", p.size * px, p.size * px);
-  const at = grid(svg, p.size, px);
-  goalMark(svg, at(p.goal), px);
+function moves(svg, at, px, p) {  // the agent's cell (black) and its two proposed moves as arrows (stay: a ring)
   [[p.first, "first", -0.15], [p.second, "second", 0.15]].forEach(([a, cls, off], k) => {
     const [dx, dy] = MOVES[a], from = at(p.cell, off), to = at([p.cell[0] + dx, p.cell[1] + dy], off);
-    if (a === 4) {  // stay: a ring around the agent
+    if (a === 4) {
       const c = at(p.cell);
       el(svg, "circle", {class: cls, cx: c[0], cy: c[1], r: px * (0.3 + 0.08 * k), style: "fill:none", "stroke-width": 4});
       el(svg, "text", {class: cls, x: from[0] + px * 0.4, y: from[1] - px * 0.3, "font-size": 18}, String(k + 1));
@@ -64,7 +61,35 @@ function drawDarkroomSteps(p) {
   });
   const c = at(p.cell);
   el(svg, "circle", {cx: c[0], cy: c[1], r: 7, fill: "#000"});
+}
+
+function drawDarkroomSteps(p) {
+  const px = 44, svg = panel("the agent (black) and its two moves", p.size * px, p.size * px);
+  const at = grid(svg, p.size, px);
+  goalMark(svg, at(p.goal), px);
+  moves(svg, at, px, p);
   return `Goal G at (${p.goal}). Agent at (${p.cell}). 1 (blue): ${ACTIONS[p.first]}; 2 (orange): ${ACTIONS[p.second]}.`;
+}
+
+function drawOnlineDarkroom(p) {  // an online agent's question: its episode so far, its moves, its context
+  const px = 40, svg = panel(`task ${p.task}: the episode so far (grey) and the two moves the agent asks about`,
+                             p.size * px, p.size * px);
+  const at = grid(svg, p.size, px);
+  if (p.goal !== null) goalMark(svg, at(p.goal), px);
+  if (p.path.length > 1) el(svg, "polyline", {class: "path", style: "stroke:#777", points: p.path.map(c => at(c).join(",")).join(" ")});
+  moves(svg, at, px, p);
+  const div = document.createElement("div");
+  div.className = "panel context";
+  const said = {first: "≻", second: "≺", equal: "=", skip: "?"};
+  div.textContent = `its context (${p.context.length} answered):`;
+  for (const q of p.context.slice(-12)) {
+    const line = document.createElement("div");
+    line.textContent = `at (${q.cell}): ${ACTIONS[q.first]} ${said[q.answer]} ${ACTIONS[q.second]}`;
+    div.appendChild(line);
+  }
+  document.getElementById("view").appendChild(div);
+  return `Goal G at (${p.goal}). Return so far this episode: ${p.return}. 1 (blue): ${ACTIONS[p.first]}; ` +
+         `2 (orange): ${ACTIONS[p.second]}.`;
 }
 
 function drawDarkroomTrajectories(p) {
@@ -128,7 +153,7 @@ function drawBanditDuels(p) {  // θ (what is wanted) beside the two arms' featu
   return `Arm 1 is arm #${p.arms[0]}, arm 2 is arm #${p.arms[1]}. The better arm's features point along θ.`;
 }
 
-const DRAW = {darkroom_steps: drawDarkroomSteps, darkroom_trajectories: drawDarkroomTrajectories,
+const DRAW = {darkroom_steps: drawDarkroomSteps, online_darkroom: drawOnlineDarkroom, darkroom_trajectories: drawDarkroomTrajectories,
               reach_trajectories: drawReachTrajectories, bandit_duels: drawBanditDuels};
 
 function draw(p) {
