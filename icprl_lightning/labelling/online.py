@@ -9,6 +9,8 @@ the return it has gathered in this episode, and the comparisons already in its c
 Answers go through the labelling server (``server.py``: the token, the checks, the 4xx) into the session's
 append-only log (``answer_log.py``), so every answer of a run is on disk with its response time; each asked
 comparison is appended to ``<session>/asked.jsonl`` too. An answer the agent has used can no longer be undone.
+The page's address (with its token) is printed on stderr and written to ``<session>/page.url`` (mode 0600, as
+Jupyter's runtime files), where a program answering for a person (a scripted teacher, a study's harness) finds it.
 
 The vector env plays all held-out tasks at once, so one query step asks one comparison per task; the page
 shows them one after another. EQUAL and SKIP are answers like the terminal's: a tie or a skip enters the agent's
@@ -20,6 +22,7 @@ It draws DarkRoom (2-D grid) comparisons; a trajectory query is an error (the on
 from __future__ import annotations
 
 import json
+import os
 import secrets
 import socket
 import sys
@@ -96,6 +99,9 @@ class BrowserAnnotator(Annotator):
         self._thread = threading.Thread(target=self._server.run, kwargs={"sockets": [sock]}, daemon=True)
         self._thread.start()
         self.url = f"http://{host}:{port}/?token={token}&annotator={self.annotator}"
+        fd = os.open(path / "page.url", os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)  # as Jupyter's runtime file
+        with os.fdopen(fd, "w") as f:
+            f.write(self.url + "\n")
         print(f"BrowserAnnotator: answer the agent's comparisons at\n  {self.url}", file=sys.stderr, flush=True)
         return self.url
 

@@ -10,10 +10,14 @@ import time
 import httpx
 import numpy as np
 import torch
+import yaml
+from factories import save_untrained
 
+from icprl_lightning.cli import main
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.evaluation import online_mdp
 from icprl_lightning.labelling.online import BrowserAnnotator
+from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.online import OnlineAgent
@@ -35,7 +39,10 @@ def bradley_terry_person(url: str, stop: threading.Event, rng: np.random.Generat
     token = dict(x.split("=") for x in query.split("&"))["token"]
     with httpx.Client(base_url=origin) as client:
         while not stop.is_set():
-            shown = client.get(f"/api/pair?token={token}&annotator=person").json()
+            try:
+                shown = client.get(f"/api/pair?token={token}&annotator=person").json()
+            except httpx.TransportError:  # the run is over and its page closed: the person leaves
+                return
             if shown.get("done"):
                 time.sleep(0.005)
                 continue
@@ -105,3 +112,43 @@ def test_a_person_at_the_keyboard_teaches_the_agent(browser, tiny_ipref, tmp_pat
         assert "Waiting for the agent" in page.inner_text("#question")
     finally:
         person.stop()
+
+
+def test_evaluate_online_takes_a_person_in_the_browser(tiny_kwargs, tmp_path, capsys):
+    """``icprl evaluate online --browser-session``: the command's agent asks the page; the person answers it."""
+    torch.manual_seed(0)
+    module = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=8,
+                        backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2))
+    ckpt = str(save_untrained(module, tmp_path / "icpo.ckpt"))
+    setting = {k: v for k, v in tiny_kwargs.items() if k in ("trajectories_per_task", "val_trajectories_per_task",
+                                                             "eval_contexts_per_task", "calibration_episodes")}
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump({"data": {
+        "class_path": "icprl_lightning.data.PreferenceDataModule",
+        "init_args": {"family": {"class_path": "icprl_lightning.families.darkroom.DarkRoomFamily",
+                                 "init_args": {"horizon": 8}},  # 8-step contexts: few questions
+                      "setting": {"class_path": "icprl_lightning.data.settings.StepPreferences",
+                                  "init_args": {**setting, "reference_episodes": 4}},
+                      "root_dir": str(tmp_path / "data"), "pairs": True}}}))
+    session, stop = tmp_path / "online", threading.Event()
+
+    def person() -> None:
+        while not (session / "page.url").exists() and not stop.is_set():
+            time.sleep(0.01)
+        if not stop.is_set():
+            bradley_terry_person((session / "page.url").read_text().strip(), stop, np.random.default_rng(1))
+
+    answering = threading.Thread(target=person)
+    answering.start()
+    try:
+        main(["evaluate", "online", "--config", str(config), "--ckpt", ckpt, "--episodes", "2", "--seeds", "0",
+              "--browser-session", str(session)])
+    finally:
+        stop.set()
+        answering.join()
+    out = json.loads(capsys.readouterr().out)
+    assert out["annotator"]["class_path"] == "icprl_lightning.labelling.online.BrowserAnnotator"
+    assert out["online"]["action_uniform"]["queries_before_episode"] == [0, 4, 8]
+    tasks = out["tasks"] * out["episodes_per_task"]
+    assert len((session / "answers.jsonl").read_text().splitlines()) == 8 * tasks
+    assert (session / "page.url").stat().st_mode & 0o777 == 0o600
