@@ -37,19 +37,17 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Serve (or export) the session; a user's mistake is a ``ValueError`` the ``icprl`` command prints in one line."""
     args = parser().parse_args(argv)
     from icprl_lightning.labelling.session import hold_lock, open_session
 
-    try:
-        session = open_session(args.session, args.view, args.pairs, args.seed)
-        if args.export:
-            from icprl_lightning.labelling.export import export
+    session = open_session(args.session, args.view, args.pairs, args.seed)
+    if args.export:
+        from icprl_lightning.labelling.export import export
 
-            print(json.dumps(export(session, args.export, args.overwrite, args.ties)))
-            return 0
-        lock = hold_lock(args.session)
-    except ValueError as e:
-        parser().error(str(e))
+        print(json.dumps(export(session, args.export, args.overwrite, args.ties)))
+        return 0
+    lock = hold_lock(args.session)
     import uvicorn
 
     from icprl_lightning.labelling.server import LOOPBACK, make_app
@@ -57,7 +55,10 @@ def main(argv: list[str] | None = None) -> int:
     token = secrets.token_urlsafe(24)
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    sock.bind((args.host, args.port))
+    try:
+        sock.bind((args.host, args.port))
+    except OSError as e:
+        raise ValueError(f"--host/--port: cannot listen on {args.host}:{args.port} ({e.strerror})") from None
     sock.listen(128)  # connections wait in the backlog from now on, before uvicorn accepts them
     host, port = sock.getsockname()
     app = make_app(session, token, LOOPBACK if args.host == "127.0.0.1" else [*LOOPBACK, args.host])

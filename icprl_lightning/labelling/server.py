@@ -60,7 +60,9 @@ def _field(value: Any, name: str, pattern: re.Pattern) -> str:
 async def _body(request: Request, keys: dict[str, type]) -> dict[str, Any]:
     """The request's JSON object, checked: size, syntax, exactly ``keys`` with their types."""
     declared = request.headers.get("content-length")
-    if declared is not None and (not declared.isdigit() or int(declared) > MAX_BODY):
+    if declared is not None and not declared.isdigit():
+        raise Refused(f"Content-Length must be a number of bytes, got {declared[:20]!r}")
+    if declared is not None and int(declared) > MAX_BODY:
         raise Refused(f"a request body holds at most {MAX_BODY} bytes", 413)
     raw = b""
     async for chunk in request.stream():

@@ -136,3 +136,21 @@ def test_wrong_methods_are_refused(served):
     client, session = served
     refused(client, session, lambda c: c.get(f"/api/answer?token={TOKEN}"), 405)
     refused(client, session, lambda c: c.put(f"/api/answer?token={TOKEN}", json={}), 405)
+
+
+def test_command_mistakes_are_one_line(tmp_path, capsys):
+    from icprl_lightning.cli import main
+
+    for argv, message in ((["--session", str(tmp_path / "new")], "--view must be one of"),
+                          (["--session", str(tmp_path / "new"), "--view", "darkroom_steps", "--pairs", "0"],
+                           "--pairs must be an integer in [1, 10000]")):
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as info:
+            main(["label", *argv])
+        err = capsys.readouterr().err
+        assert info.value.code == 2 and err.count("\n") == 1 and err.startswith("icprl label: error: ") and \
+            message in err, err
+    assert not (tmp_path / "new").exists()
+    open_session(tmp_path / "s", "darkroom_steps", 3, 0)
+    with pytest.raises(ValueError, match="holds a session with view 'darkroom_steps', not 'bandit_duels'"):
+        open_session(tmp_path / "s", "bandit_duels", 3, 0)
