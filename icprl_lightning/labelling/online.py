@@ -1,6 +1,9 @@
-"""A person teaches an agent in context: ``BrowserAnnotator``, the labelling page as the online agent's annotator.
+"""A person answers in the browser as an ``Annotator``: ``BrowserAnnotator`` teaches an agent in context online,
+or labels a DarkRoom dataset while it is generated (a setting's ``annotator``, as the terminal annotator was).
 
     icprl evaluate online --config configs/icpo_darkroom.yaml --ckpt CKPT --browser-session labels/online
+    setting: {class_path: ...TrajectoryPairs, init_args: {annotator: {class_path:
+              icprl_lightning.labelling.online.BrowserAnnotator, init_args: {session: labels/generation}}}}
 
 ``icprl evaluate online`` deploys the agent on held-out DarkRoom tasks; each time it asks for a comparison
 (its pair rule, as with any annotator) the comparison is put on the page, and the agent waits for the answer.
@@ -13,10 +16,12 @@ The page's address (with its token) is printed on stderr and written to ``<sessi
 Jupyter's runtime files), where a program answering for a person (a scripted teacher, a study's harness) finds it.
 
 The vector env plays all held-out tasks at once, so one query step asks one comparison per task; the page
-shows them one after another. EQUAL and SKIP are answers like the terminal's: a tie or a skip enters the agent's
-context as a fair coin (``annotators/labels.py``), as for every annotator of the online loop.
+shows them one after another. EQUAL and SKIP are answers like any annotator's: a tie or a skip enters the agent's
+context, or a generated dataset, as a fair coin (``annotators/labels.py``; ``icprl label`` keeps ties as 0.5).
 
-It draws DarkRoom (2-D grid) comparisons; a trajectory query is an error (the online agent asks step pairs).
+Data generation asks batches of step pairs (drawn as the online ones, without a path or a context) or of
+trajectory pairs (drawn as ``icprl label``'s DarkRoom trajectories). It draws DarkRoom's 2-D cells; other
+families' queries are an error.
 """
 
 from __future__ import annotations
@@ -60,11 +65,13 @@ class BrowserAnnotator(Annotator):
         host, port: where the page is served (default: loopback, any free port); its address is printed.
         annotator: the person's name on the log and in the page's address.
         timeout: seconds to wait for one batch of answers before giving up (``AnnotatorError``).
+        grid_size: the DarkRoom grid's side, for the drawing.
     """
 
     def __init__(self, session: str, host: str = "127.0.0.1", port: int = 0, annotator: str = "person",
-                 timeout: float = 3600.0) -> None:
+                 timeout: float = 3600.0, grid_size: int = 10) -> None:
         self.session_dir, self.host, self.port, self.annotator, self.timeout = session, host, port, annotator, timeout
+        self.grid_size = grid_size
         self.url: str | None = None
         self._server: Any = None
         self._thread: threading.Thread | None = None
@@ -72,7 +79,8 @@ class BrowserAnnotator(Annotator):
         self._context: list[list[dict[str, Any]]] = []
 
     def init_args(self) -> dict[str, Any]:
-        return {"session": self.session_dir, "host": self.host, "port": self.port, "annotator": self.annotator}
+        return {"session": self.session_dir, "host": self.host, "port": self.port, "annotator": self.annotator,
+                "timeout": self.timeout, "grid_size": self.grid_size}
 
     # ---- the page's server ---------------------------------------------------------------------------------
     def start(self) -> str:
@@ -123,23 +131,42 @@ class BrowserAnnotator(Annotator):
         self._episode["returns"] = np.asarray(returns, dtype=float).tolist()
 
     def label_steps(self, queries: StepQueries, rng: np.random.Generator) -> np.ndarray:
-        if queries.states.shape[-1] != 2:
-            raise AnnotatorError("BrowserAnnotator draws DarkRoom comparisons (2-D cells); this family's states have "
-                                 f"{queries.states.shape[-1]} numbers")
-        self.start()
-        log, n = self.session.log, len(queries.states)
+        n = self._check(queries.states, "step")
         while len(self._context) < n:
             self._context.append([])
-        ids = [f"online-{len(log.pair_ids) + i:05d}" for i in range(n)]
-        for i, pair in enumerate(ids):
-            shown = {"pair": pair, "view": "online_darkroom", "size": 10, "cell": queries.states[i].tolist(),
-                     "first": int(queries.actions[i]), "second": int(queries.alt_actions[i]), "task": i,
-                     "goal": None if queries.tasks is None else np.asarray(queries.tasks[i]).tolist(),
-                     "path": (self._episode["paths"] or [[]] * n)[i][-200:],
-                     "return": (self._episode["returns"] or [0.0] * n)[i], "context": self._context[i][-30:]}
-            self.session.shown[pair] = shown
-            with open(self.session.path / "asked.jsonl", "a") as f:
-                f.write(json.dumps(shown) + "\n")
+        paths, returns = self._episode["paths"] or [[]] * n, self._episode["returns"] or [0.0] * n
+        labels = self._ask([{"view": "online_darkroom", "cell": queries.states[i].tolist(),
+                             "first": int(queries.actions[i]), "second": int(queries.alt_actions[i]), "task": i,
+                             "goal": _goal(queries.tasks, i), "path": paths[i][-200:], "return": returns[i],
+                             "context": self._context[i][-30:]} for i in range(n)])
+        for i, label in enumerate(labels):
+            self._context[i].append({"cell": queries.states[i].tolist(), "first": int(queries.actions[i]),
+                                     "second": int(queries.alt_actions[i]), "answer": label})
+        return np.array([CODES[label] for label in labels], dtype=np.uint8)
+
+    def label_trajectories(self, queries: TrajectoryQueries, rng: np.random.Generator) -> np.ndarray:
+        n = self._check(queries.states_a, "trajectory")
+        labels = self._ask([{"view": "darkroom_trajectories", "goal": _goal(queries.tasks, i), "task": i,
+                             "first": np.asarray(queries.states_a[i]).round().astype(int).tolist(),
+                             "second": np.asarray(queries.states_b[i]).round().astype(int).tolist()}
+                            for i in range(n)])
+        return np.array([CODES[label] for label in labels], dtype=np.uint8)
+
+    def _check(self, states: np.ndarray, what: str) -> int:
+        if states.shape[-1] != 2:
+            raise AnnotatorError(f"BrowserAnnotator draws DarkRoom {what} pairs (2-D cells); this family's states have "
+                                 f"{states.shape[-1]} numbers")
+        return len(states)
+
+    def _ask(self, shown: list[dict[str, Any]]) -> list[str]:
+        """Put the comparisons on the page, wait for every answer, return them in order (first / second / ...)."""
+        self.start()
+        log = self.session.log
+        ids = [f"asked-{len(log.pair_ids) + i:05d}" for i in range(len(shown))]
+        with open(self.session.path / "asked.jsonl", "a") as f:
+            for pair, item in zip(ids, shown, strict=True):
+                self.session.shown[pair] = {"pair": pair, "size": self.grid_size, **item}
+                f.write(json.dumps(self.session.shown[pair]) + "\n")
         log.pair_ids.extend(ids)
         deadline = time.monotonic() + self.timeout
         while log.current(self.annotator) is not None:
@@ -147,14 +174,10 @@ class BrowserAnnotator(Annotator):
                 raise AnnotatorError(f"BrowserAnnotator: no answer to {log.current(self.annotator)} within "
                                      f"{self.timeout:g} s (the page is at {self.url})")
             time.sleep(0.02)
-        with log.lock:  # the agent uses these answers now: no undo from here on
+        with log.lock:  # the answers are used from now on: no undo
             log.frozen[self.annotator] = len(log.pair_ids)
-            labels = {a["pair"]: a["label"] for a in log.answers[self.annotator][-n:]}
-        out = np.array([CODES[labels[p]] for p in ids], dtype=np.uint8)
-        for i, pair in enumerate(ids):
-            self._context[i].append({"cell": self.session.shown[pair]["cell"], "first": int(queries.actions[i]),
-                                     "second": int(queries.alt_actions[i]), "answer": labels[pair]})
-        return out
+            return [a["label"] for a in log.answers[self.annotator][-len(ids):]]
 
-    def label_trajectories(self, queries: TrajectoryQueries, rng: np.random.Generator) -> np.ndarray:
-        raise AnnotatorError("BrowserAnnotator answers the online agent's step comparisons, not trajectory pairs")
+
+def _goal(tasks: np.ndarray | None, i: int) -> list | None:
+    return None if tasks is None else np.asarray(tasks[i]).tolist()

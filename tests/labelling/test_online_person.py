@@ -15,8 +15,10 @@ from factories import save_untrained
 
 from icprl_lightning.cli import main
 from icprl_lightning.contexts import ActionSpec
+from icprl_lightning.data.settings.trajectory_pairs import label_trajectory_pairs
 from icprl_lightning.evaluation import online_mdp
 from icprl_lightning.labelling.online import BrowserAnnotator
+from icprl_lightning.labelling.pairs import DarkRoomTrajectories
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.models.config import TransformerConfig
 from icprl_lightning.models.policy import InContextPolicy
@@ -46,9 +48,13 @@ def bradley_terry_person(url: str, stop: threading.Event, rng: np.random.Generat
             if shown.get("done"):
                 time.sleep(0.005)
                 continue
-            cell, goal = np.array(shown["cell"]), np.array(shown["goal"])
-            d = [np.abs(np.clip(cell + MOVES[shown[k]], 0, 9) - goal).sum() for k in ("first", "second")]
-            label = "first" if rng.random() < 1 / (1 + np.exp(-(d[1] - d[0]) / tau)) else "second"
+            goal = np.array(shown["goal"])
+            if shown["view"] == "darkroom_trajectories":  # the steps each episode spent on the goal
+                u = [np.all(np.array(shown[k]) == goal, axis=1).sum() for k in ("first", "second")]
+            else:  # how close each move leads to the goal
+                u = [-np.abs(np.clip(np.array(shown["cell"]) + MOVES[shown[k]], 0, 9) - goal).sum()
+                     for k in ("first", "second")]
+            label = "first" if rng.random() < 1 / (1 + np.exp(-(u[0] - u[1]) / tau)) else "second"
             time.sleep(rng.uniform(0.0, 0.004))  # a person's seconds, scaled down
             client.post(f"/api/answer?token={token}", json={"annotator": "person", "pair": shown["pair"],
                                                             "label": label, "nonce": f"bt{rng.integers(1 << 60):x}",
@@ -99,7 +105,7 @@ def test_a_person_at_the_keyboard_teaches_the_agent(browser, tiny_ipref, tmp_pat
     b = len(suite.task_index)
     try:
         for k in range(2 * b):
-            page.wait_for_selector(f"body[data-pair='online-{k:05d}']", state="attached", timeout=20_000)
+            page.wait_for_selector(f"body[data-pair='asked-{k:05d}']", state="attached", timeout=20_000)
             if k == b + 1:  # a question of the second query step: the path and the context are drawn
                 assert page.inner_text(".context").startswith("its context (1 answered)")
                 page.wait_for_timeout(100)
@@ -152,3 +158,27 @@ def test_evaluate_online_takes_a_person_in_the_browser(tiny_kwargs, tmp_path, ca
     tasks = out["tasks"] * out["episodes_per_task"]
     assert len((session / "answers.jsonl").read_text().splitlines()) == 8 * tasks
     assert (session / "page.url").stat().st_mode & 0o777 == 0o600
+
+
+def test_a_person_labels_a_generated_dataset_in_the_browser(tmp_path):
+    """As a setting's annotator: T-PRL pairs labelled in the page as the generator draws them."""
+    pairs = DarkRoomTrajectories().build(6, 0)
+    states = np.concatenate([pairs["states_a"], pairs["states_b"]])
+    actions = np.concatenate([pairs["actions_a"], pairs["actions_b"]])
+    rewards = np.zeros(actions.shape, dtype=np.float32)
+    rewards[:, -1] = np.concatenate([pairs["utility_first"], pairs["utility_second"]])  # the returns
+    person = BrowserAnnotator(str(tmp_path / "generation"))
+    stop = threading.Event()
+    answering = threading.Thread(target=bradley_terry_person, args=(person.start(), stop, np.random.default_rng(0)))
+    answering.start()
+    try:
+        arrays, _, stats = label_trajectory_pairs(states, actions, rewards, 6, person, np.random.default_rng(0),
+                                                  tasks=pairs["goal"].astype(int))
+    finally:
+        stop.set()
+        answering.join()
+        person.stop()
+    log = [json.loads(x) for x in (tmp_path / "generation" / "answers.jsonl").read_text().splitlines()]
+    assert arrays["preferred"].tolist() == [int(x["label"] == "first") for x in log]
+    asked = [json.loads(x) for x in (tmp_path / "generation" / "asked.jsonl").read_text().splitlines()]
+    assert [q["first"] for q in asked] == pairs["states_a"].astype(int).tolist()

@@ -95,7 +95,7 @@ function drawOnlineDarkroom(p) {  // an online agent's question: its episode so 
 function drawDarkroomTrajectories(p) {
   const px = 44, svg = panel("two episodes (1 blue, 2 orange; squares: start), replayed step by step", p.size * px, p.size * px);
   const at = grid(svg, p.size, px);
-  goalMark(svg, at(p.goal), px);
+  if (p.goal !== null) goalMark(svg, at(p.goal), px);
   const dots = [];
   [[p.first, "first", -0.12], [p.second, "second", 0.12]].forEach(([path, cls, off]) => {
     el(svg, "polyline", {class: `path ${cls}`, points: path.map(c => at(c, off).join(",")).join(" ")});
@@ -109,6 +109,7 @@ function drawDarkroomTrajectories(p) {
     label.textContent = `step ${h + 1} / ${p.first.length}`;
   });
   const visits = path => path.filter(c => c[0] === p.goal[0] && c[1] === p.goal[1]).length;
+  if (p.goal === null) return "Which episode is better?";
   return `Goal G at (${p.goal}). Steps on the goal: 1 (blue) ${visits(p.first)}, 2 (orange) ${visits(p.second)}.`;
 }
 
