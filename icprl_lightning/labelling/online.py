@@ -1,5 +1,5 @@
 """A person answers in the browser as an ``Annotator``: ``BrowserAnnotator`` teaches an agent in context online,
-or labels a DarkRoom dataset while it is generated (a setting's ``annotator``, as the terminal annotator was).
+or labels a DarkRoom dataset while it is generated (a setting's ``annotator``).
 
     icprl evaluate online --config configs/icpo_darkroom.yaml --ckpt CKPT --browser-session labels/online
     setting: {class_path: ...TrajectoryPairs, init_args: {annotator: {class_path:
