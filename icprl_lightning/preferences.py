@@ -13,6 +13,8 @@ the generator.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 
@@ -101,3 +103,8 @@ class AgreementTally:
                 "median_utility_gap": float(np.median(np.concatenate(self.gaps), overwrite_input=True)),
                 "expected_agreement_by_bt_temperature": {str(t): float(0.5 * (1.0 + m))
                                                          for t, m in zip(self.temperatures, mean_tanh, strict=True)}}
+
+
+def has_soft_labels(preferred: Any) -> bool:
+    """Whether some label (a numpy array or a tensor) lies strictly between 0 and 1: a tie stored as 0.5."""
+    return bool(((preferred > 0) & (preferred < 1)).any())

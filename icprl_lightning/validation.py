@@ -184,6 +184,10 @@ def pairing_errors(model: Any, datamodule: Any, callbacks: Iterable[Any] = ()) -
         if getattr(model, f"needs_{flag}", False) and not served:
             errors.append(f"{m_name} (as configured) needs {d_name} with {flag}: true; set "
                           f"--data.init_args.{flag} true")
+    if getattr(datamodule, "soft_labels", False) and not getattr(model, "soft_labels", False):
+        errors.append(f"{d_name} ({datamodule.path}) holds soft labels (ties stored as 0.5) and {m_name} trains on "
+                      "labels of 0 or 1 only: train ICPO or RewardGen on it, or export the answers again with "
+                      "--ties drop")
     fields = tuple(getattr(model, "needs_batch_fields", ()))
     missing = [f for f in fields if f not in datamodule.batch_fields()]
     if missing:

@@ -1,5 +1,6 @@
 """Who labels a pair (DESIGN.md, "annotators/"): the Bradley–Terry oracle, B-Pref's scripted teachers, any
-Python function, an HTTP endpoint (an LLM), a person at a terminal. A setting takes one as ``annotator``::
+Python function, an HTTP endpoint (an LLM); a person answers in the browser (``labelling/online.py``,
+``BrowserAnnotator``). A setting takes one as ``annotator``::
 
     setting:
       class_path: icprl_lightning.data.settings.TrajectoryPairs
@@ -17,8 +18,6 @@ from icprl_lightning.annotators.endpoint import HTTPAnnotator
 from icprl_lightning.annotators.function import CallableAnnotator
 from icprl_lightning.annotators.labels import EQUAL, FIRST, SECOND, SKIP, AnnotatorError
 from icprl_lightning.annotators.scripted import ScriptedTeacher
-from icprl_lightning.annotators.terminal import TerminalAnnotator
 
 __all__ = ["EQUAL", "FIRST", "SECOND", "SKIP", "Annotator", "AnnotatorError", "BradleyTerryAnnotator",
-           "CallableAnnotator", "HTTPAnnotator", "ScriptedTeacher", "StepQueries", "TerminalAnnotator",
-           "TrajectoryQueries"]
+           "CallableAnnotator", "HTTPAnnotator", "ScriptedTeacher", "StepQueries", "TrajectoryQueries"]

@@ -1,4 +1,4 @@
-"""DarkRoom queries as text, for the annotators that ask someone (an LLM over HTTP, a person at a terminal).
+"""DarkRoom queries as text, for the annotators that ask someone (an LLM over HTTP).
 
 A DarkRoom observation is the agent's cell (x, y); the task is the goal cell, hidden from the agent and
 shown to the annotator (as in the paper's appendix "Use LLMs to label trajectory preference", where the

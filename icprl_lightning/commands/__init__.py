@@ -19,6 +19,7 @@ options and calls the library.
     icprl oracle train|export ...                                                 (oracle_*.py)
     icprl baseline sac|dqn|tune-bandit ...                                        (baseline_*.py)
     icprl analyze NAME ...                                                        (analyze_*.py)
+    icprl label --session DIR --view VIEW --pairs N [--export OUT]                (label.py, labelling/)
 
 ``fit`` / ``validate`` / ``test`` / ``predict`` / ``generate`` are a LightningCLI (``trainer.py``). The
 other subcommands are plain argparse programs, each a ``main(argv)`` in its own file; ``oracle``,
@@ -67,6 +68,8 @@ SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
     "oracle": ("", "", "train the Meta-World Reach SAC oracle, or export its weights for data generation"),
     "baseline": ("", "", "RL from scratch per held-out task (SAC, DQN); tuning of the dueling-bandit baselines"),
     "analyze": ("", "", "measurements beside the tables: reward models, DIT's advantages, label ceiling, checksums"),
+    "label": ("icprl_lightning.commands.label", "main",
+              "a labelling page in the browser for people's preferences, and its answers' export"),
 }
 # group -> verb -> (module, function, one line of help)
 GROUPS: dict[str, dict[str, tuple[str, str, str]]] = {

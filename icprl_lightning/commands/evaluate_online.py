@@ -38,12 +38,15 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--rounds", type=int, default=None, help="bandits: duels per problem (default 200)")
     parser.add_argument("--n-problems", type=int, default=None,
                         help="bandits: the first N held-out problems (default all)")
+    parser.add_argument("--browser-session", default=None,
+                        help="MDP: a person answers each comparison in the browser (the page's address is printed); "
+                             "the answers are logged in this directory")
     parser.add_argument("--out", help="also write <out>.json and the figure <out>.png")
     return parser.parse_args(argv)
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args = parse_args(argv)
     result = evaluate_online(args.config, args.ckpt or [], args.rule or ["action_uniform"], args.labels, args.seeds,
                              args.episodes, args.quality, args.targets, args.dqn, args.rounds, args.n_problems,
-                             args.out, args.ad_ckpt)
+                             args.out, args.ad_ckpt, args.browser_session)
     print(json.dumps(result, indent=2), flush=True)
     return result

@@ -107,7 +107,7 @@ def _index_dtype(n_actions: int) -> type:
 
 
 def _check_field(name: str, x: np.ndarray, spec: FieldSpec, n: int, t: int, s: int, actions: ActionSpec,
-                 reference: str) -> np.ndarray:
+                 reference: str, soft_labels: bool = False) -> np.ndarray:
     """Check one field against [N, T, ...] of ``reference`` and return it in its stored dtype."""
     expected = _expected(spec, n, t, s, actions)
     if x.dtype.kind not in "biuf":
@@ -133,11 +133,11 @@ def _check_field(name: str, x: np.ndarray, spec: FieldSpec, n: int, t: int, s: i
     if spec.role == "label":
         if x.dtype.kind == "f":
             _check_finite(name, x)
-        bad = np.unique(x[(x != 0) & (x != 1)])
+        bad = np.unique(x[(x != 0) & (x != 1) & ((x != 0.5) | (not soft_labels))])
         if bad.size:
-            raise ValueError(f"field {name!r} must hold only 0 or 1 (1 = the first of the pair won), shape "
-                             f"{expected}; found {bad[:5].tolist()}")
-        return x.astype(np.uint8)
+            raise ValueError(f"field {name!r} must hold only 0{', 0.5' * soft_labels} or 1 (1 = the first of the "
+                             f"pair won), shape {expected}; found {bad[:5].tolist()}")
+        return x.astype(np.float32 if soft_labels else np.uint8)
     if actions.discrete:
         if x.dtype.kind == "b":
             raise ValueError(f"field {name!r} is bool; discrete actions must be {expected}")
@@ -157,8 +157,10 @@ def _check_field(name: str, x: np.ndarray, spec: FieldSpec, n: int, t: int, s: i
     return _to_float32(name, x)
 
 
-def check_arrays(arrays: Mapping[str, np.ndarray], kind: str, actions: ActionSpec) -> dict[str, np.ndarray]:
-    """Validate a user's arrays for ``kind`` and return them in the stored dtypes (rows not reordered)."""
+def check_arrays(arrays: Mapping[str, np.ndarray], kind: str, actions: ActionSpec, soft_labels: bool = False
+                 ) -> dict[str, np.ndarray]:
+    """Validate a user's arrays for ``kind`` and return them in the stored dtypes (rows not reordered); with
+    ``soft_labels`` the labels are float32 and may be 0.5 (a tie)."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {sorted(KINDS)}, got {kind!r}")
     fields = KINDS[kind]
@@ -184,7 +186,7 @@ def check_arrays(arrays: Mapping[str, np.ndarray], kind: str, actions: ActionSpe
                          "context (N) of at least one step (T) with a state of at least one number (S)")
     out = {}
     for name, spec in {**fields, **{q: QUERY_FIELDS[q] for q in present}}.items():
-        out[name] = _check_field(name, np.asarray(arrays[name]), spec, n, t, s, actions, reference)
+        out[name] = _check_field(name, np.asarray(arrays[name]), spec, n, t, s, actions, reference, soft_labels)
     if TASK_FIELD in arrays:
         task = np.asarray(arrays[TASK_FIELD])
         if task.ndim != 1 or task.shape[0] != n:
@@ -262,7 +264,7 @@ def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: s
                        kind: str = "step_preference", n_actions: int | None = None, action_dim: int | None = None,
                        val_fraction: float = 0.1, seed: int = 0, overwrite: bool = False,
                        max_source_bytes: int = MAX_SOURCE_BYTES, source_rows: np.ndarray | None = None,
-                       origin: Mapping[str, Any] | None = None) -> ImportSummary:
+                       origin: Mapping[str, Any] | None = None, soft_labels: bool = False) -> ImportSummary:
     """Check ``source`` (a file, directory or dict of arrays), convert it and write it to ``out_dir``.
 
     Exactly one of ``n_actions`` (discrete actions, indices in [0, n_actions)) and ``action_dim``
@@ -270,7 +272,8 @@ def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: s
     ``OSError`` (``io.StorageError``) naming the path when reading or writing fails (a full disk: "no
     space left on <out_dir>", with nothing left behind). ``source_rows`` ([N]) is what ``source_row`` records
     for each array row (default: the row itself), for arrays converted from another format's rows; ``origin``
-    (that format, its path, what was dropped) is kept in the manifest's info.
+    (that format, its path, what was dropped) is kept in the manifest's info. ``soft_labels``: labels may be 0.5
+    (a tie), stored float32 (``icprl label --export``); only ICPO and RewardGen train on such a dataset.
     """
     if (n_actions is None) == (action_dim is None):
         raise ValueError("pass exactly one of n_actions (discrete actions) and action_dim (continuous actions)")
@@ -282,7 +285,7 @@ def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: s
     source_path = None if isinstance(source, Mapping) else Path(source)
     _guard_out_dir(out, source_path, overwrite)
     arrays = check_arrays(source if isinstance(source, Mapping) else read_source(source, max_source_bytes), kind,
-                          actions)
+                          actions, soft_labels)
     reference = next(iter(KINDS[kind]))
     n, t, s = arrays[reference].shape
     task = arrays.get(TASK_FIELD)
@@ -295,7 +298,7 @@ def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: s
     config = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": kind, "discrete": actions.discrete,
               "action_size": actions.size, "state_dim": int(s), "context_length": int(t),
               "has_task_index": task is not None, "has_query_labels": "query_states" in arrays,
-              "val_fraction": val_fraction, "seed": seed}
+              "val_fraction": val_fraction, "seed": seed, **({"soft_labels": True} if soft_labels else {})}
     info = {**config, "source": "<arrays>" if source_path is None else str(source_path),
             "contexts": {k: len(r) for k, r in rows.items()},
             "label_balance": {k: float(v["preferred"].mean()) if len(v["preferred"]) else None

@@ -125,6 +125,7 @@ class RecordedPreferenceDataModule(L.LightningDataModule):
         self._verified = not verify_checksums
         self.config = self.dataset.manifest["config"]
         self._check_config()
+        self.soft_labels = self.config.get("soft_labels", False) is True  # ties as 0.5: ICPO and RewardGen only
         missing = [s for s in SPLITS if s not in self.dataset.splits]
         if missing:
             raise DatasetError(f"{self.path} has no {missing} split. To fix: {self.hint}")
@@ -158,7 +159,8 @@ class RecordedPreferenceDataModule(L.LightningDataModule):
 
     def schema(self) -> DatasetSchema:
         """What the model linked from this data's sizes expects of every split (``data/schema.py``)."""
-        return DatasetSchema(self.context_kind, self.action_spec, self.state_dim, self.context_length)
+        return DatasetSchema(self.context_kind, self.action_spec, self.state_dim, self.context_length,
+                             soft_labels=self.soft_labels)
 
     @property
     def path(self) -> Path:

@@ -66,12 +66,14 @@ class DatasetSchema:
         actions: the action spec.
         state_dim: S of every state field (None: only equal across the fields of a split).
         max_steps: the longest context T the model takes (its ``max_context``); None: unbounded.
+        soft_labels: labels are float32 in {0, 0.5, 1} (ties kept as 0.5: ``icprl label --export``), not uint8.
     """
 
     kind: str
     actions: ActionSpec
     state_dim: int | None = None
     max_steps: int | None = None
+    soft_labels: bool = False
 
     def per_step(self, name: str) -> bool:
         role = ROLES.get(name)
@@ -89,7 +91,8 @@ class DatasetSchema:
         if role == ACTION:
             return 2, f"[{lead}] integer action indices in [0, {self.actions.size})"
         if role == LABEL:
-            return lead.count(",") + 1, f"[{lead}] uint8 labels in {{0, 1}}"
+            return lead.count(",") + 1, (f"[{lead}] float32 labels in {{0, 0.5, 1}}" if self.soft_labels
+                                         else f"[{lead}] uint8 labels in {{0, 1}}")
         if role == REWARD:
             return 2, f"[{lead}] float32"
         return 1, f"[{lead}] integer"
@@ -180,7 +183,8 @@ def _dtype_problem(name: str, x: np.ndarray, schema: DatasetSchema) -> str | Non
     if role in (STATE, REWARD, ACTION):
         return None if x.dtype == np.float32 else f"has dtype {x.dtype}, not float32"
     if role == LABEL:
-        return None if x.dtype == np.uint8 else f"has dtype {x.dtype}, not uint8"
+        dtype = np.float32 if schema.soft_labels else np.uint8
+        return None if x.dtype == dtype else f"has dtype {x.dtype}, not {np.dtype(dtype)}"
     return None if kind in "iu" else f"has dtype {x.dtype}, not integer"
 
 
@@ -226,10 +230,11 @@ def _value_problem(name: str, x: np.ndarray, schema: DatasetSchema) -> str | Non
             if problem is not None:
                 return problem + rows
         if role == LABEL:
-            bad = (block != 0) & (block != 1)
+            bad = (block != 0) & (block != 1) & ((block != 0.5) | (not schema.soft_labels))
             if bad.any():
                 found = np.unique(block[bad])[:5].tolist()
-                return f"must hold only 0 or 1 (1 = the first of the pair won); found {found}"
+                allowed = "0, 0.5 (a tie) or 1" if schema.soft_labels else "0 or 1"
+                return f"must hold only {allowed} (1 = the first of the pair won); found {found}"
         if discrete and (block.min() < 0 or block.max() >= n_actions):
             bad = (block < 0) | (block >= n_actions)
             return f"holds action indices outside [0, {n_actions}): found {np.unique(block[bad])[:5].tolist()}"

@@ -17,6 +17,8 @@ flipped / random is the online label diagnostic (the answers inverted, or replac
 agent sees them). Several ``--ckpt`` are training seeds: every row is then the mean ± sem over them.
 ``--ad-ckpt`` (dueling bandits; repeat for training seeds) adds the row ``ad``: Algorithm Distillation on DTS's
 duels (``configs/ad_bandit.yaml``, docs/ad_bandit.md) playing the same problems; with it ``--ckpt`` may be left out.
+``--browser-session DIR`` (MDP) has a person answer each comparison in the labelling page instead of the
+dataset's annotator (``labelling/online.py``).
 
 Prints the result as JSON; ``--out PATH`` also writes ``PATH.json`` and the figure ``PATH.png``.
 ``evaluate_online`` is the same run as a function.
@@ -35,7 +37,8 @@ from icprl_lightning.families.base import TaskFamily
 from icprl_lightning.hub import load_model
 from icprl_lightning.io import write_json_atomic
 
-MDP_ONLY = {"episodes": "--episodes", "quality": "--quality", "targets": "--targets", "dqn": "--dqn"}
+MDP_ONLY = {"episodes": "--episodes", "quality": "--quality", "targets": "--targets", "dqn": "--dqn",
+            "browser_session": "--browser-session"}
 BANDIT_ONLY = {"rounds": "--rounds", "n_problems": "--n-problems", "ad_checkpoints": "--ad-ckpt"}
 
 
@@ -44,14 +47,15 @@ def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | P
                     seeds: Sequence[int] | None = None, episodes: int | None = None, quality: str | None = None,
                     targets: Sequence[float] | None = None, dqn: str | Path | None = None,
                     rounds: int | None = None, n_problems: int | None = None,
-                    out: str | Path | None = None, ad_checkpoints: Sequence[str | Path] | None = None
-                    ) -> dict[str, Any]:
+                    out: str | Path | None = None, ad_checkpoints: Sequence[str | Path] | None = None,
+                    browser_session: str | None = None) -> dict[str, Any]:
     """``icprl evaluate online`` as a function: the same inputs as its options, the JSON it prints as a dict.
 
     ``configs`` stack as ``--config`` does; ``episodes``, ``quality``, ``targets`` and ``dqn`` apply to MDP
     families, ``rounds``, ``n_problems`` and ``ad_checkpoints`` to dueling bandits (a value given for the other
     kind is a ``ValueError`` naming its option). ``seeds`` default to 0 1 (MDP) or 0 (bandits). ``out`` writes
-    ``<out>.json`` and ``<out>.png``.
+    ``<out>.json`` and ``<out>.png``. ``browser_session`` (MDP): a person answers in the browser
+    (``labelling/online.py``), their answers logged in that directory.
     """
     if not configs:
         raise ValueError("--config: give the checkpoints' dataset config")
@@ -61,7 +65,7 @@ def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | P
     dm = datamodule_from_config(*configs, progress=False)
     bandit = is_bandit_data(dm)
     given = {"episodes": episodes, "quality": quality, "targets": targets, "dqn": dqn, "rounds": rounds,
-             "n_problems": n_problems, "ad_checkpoints": ad_checkpoints or None}
+             "n_problems": n_problems, "ad_checkpoints": ad_checkpoints or None, "browser_session": browser_session}
     for key, option in (MDP_ONLY if bandit else BANDIT_ONLY).items():
         if given[key] is not None:
             raise ValueError(f"{option} applies to {'MDP families' if bandit else 'dueling bandits'}; the config's "
@@ -85,9 +89,18 @@ def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | P
         if not checkpoints:
             raise ValueError("--ckpt: give at least one I-PRL checkpoint")
         dm.setup("validate")
-        result = online_mdp.evaluate_online_mdp(
-            dm, checkpoints, rules, labels, seeds if seeds is not None else (0, 1),
-            episodes if episodes is not None else 5, quality or "medium", targets, dqn)
+        person = None
+        if browser_session is not None:
+            from icprl_lightning.labelling.online import BrowserAnnotator
+
+            person = BrowserAnnotator(browser_session)
+        try:
+            result = online_mdp.evaluate_online_mdp(
+                dm, checkpoints, rules, labels, seeds if seeds is not None else (0, 1),
+                episodes if episodes is not None else 5, quality or "medium", targets, dqn, person)
+        finally:
+            if person is not None:
+                person.stop()
     result = {"configs": [str(c) for c in configs], **result}
     if out is not None:
         write_json_atomic(f"{out}.json", result)

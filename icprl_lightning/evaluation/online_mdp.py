@@ -68,6 +68,7 @@ def online_episodes(agent: OnlineAgent, family: TaskFamily, suite: EvalSuite, an
     per_episode = agent.policy.transformer.max_context // episodes
     asks = set(query_steps(suite.horizon, per_episode).tolist())
     env = suite.make_env()
+    watch = getattr(annotator, "watch", None)  # an annotator that shows a person the episode (BrowserAnnotator)
     returns, lengths = [], []
     try:
         b = env.num_envs
@@ -78,6 +79,8 @@ def online_episodes(agent: OnlineAgent, family: TaskFamily, suite: EvalSuite, an
             total = np.zeros(b)
             for h in range(suite.horizon):
                 obs_t = torch.as_tensor(obs, dtype=torch.float32)
+                if watch is not None:
+                    watch(obs, total, h)
                 if episode < episodes and h in asks:
                     first, second = agent.propose(obs_t)
                     both = np.stack([first.cpu().numpy(), second.cpu().numpy()])
@@ -131,11 +134,12 @@ def dqn_curve(path: str | Path) -> dict[str, float]:
 def evaluate_online_mdp(dm: Any, checkpoints: Sequence[str], rules: Sequence[str] = ("action_uniform",),
                         labels: str = "own", seeds: Sequence[int] = (0, 1), episodes: int = 5,
                         quality: str = "medium", targets: Sequence[float] | None = None,
-                        dqn: str | Path | None = None) -> dict[str, Any]:
+                        dqn: str | Path | None = None, annotator: Annotator | None = None) -> dict[str, Any]:
     """Online rows per pair rule beside the offline rows of the same checkpoints, on ``dm``'s held-out tasks.
 
     ``dm`` is a prepared and set-up DataModule of a ``TaskFamily``; the online tasks and episodes are those of
-    its ``quality`` suite. Returns the JSON-ready result (module docstring).
+    its ``quality`` suite; ``annotator`` answers the queries (default: the dataset's). Returns the JSON-ready
+    result (module docstring).
     """
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {episodes}")
@@ -144,7 +148,7 @@ def evaluate_online_mdp(dm: Any, checkpoints: Sequence[str], rules: Sequence[str
     unknown = sorted(set(rules) - set(PAIR_RULES))
     if unknown:
         raise ValueError(f"--rule {unknown[0]!r} is not a pair rule; choose from {', '.join(sorted(PAIR_RULES))}")
-    family, annotator = dm.family, dm.setting.annotator
+    family, annotator = dm.family, annotator or dm.setting.annotator
     started = time.perf_counter()
     loaded = {c: OnlineAgent.load(c) for c in checkpoints}  # read once; each seed below reuses the policy
     max_context = {a.policy.transformer.max_context for a in loaded.values()}

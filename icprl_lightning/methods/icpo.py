@@ -34,6 +34,10 @@ No optimal-action labels, no rewards: only the comparisons. Where the scored com
   takes: its tokens hold each step's state ahead of the step's comparison.
 * ``"context"``: the paper's literal form — the comparisons of D itself, each scored with the whole D
   in view (T_θ(a | s_h, D) with D ∋ (s_h, a_h, a'_h, y_h)).
+
+Soft labels: a scored comparison labelled y ∈ (0, 1) (a person's tie, y = 1/2: ``icprl label --export``) is
+scored in both orders, weighted y and 1 − y (``losses.soft_label_loss``); labels of 0 and 1 take the path
+above unchanged.
 """
 
 from __future__ import annotations
@@ -41,10 +45,12 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.methods.base import InContextModule
-from icprl_lightning.methods.losses import icpo_continuous_loss, icpo_loss
+from icprl_lightning.methods.losses import icpo_continuous_loss, icpo_loss, soft_label_loss
 from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
 from icprl_lightning.models.tokenizers import preferred_first
+from icprl_lightning.preferences import has_soft_labels
 from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError, check_choice, check_nonnegative, check_positive
 
@@ -53,6 +59,7 @@ PAIR_STEPS = ("shuffled", "aligned")
 
 
 class ICPOModule(InContextModule):
+    soft_labels = True  # trains on labels in [0, 1] (ties as 1/2), checked against the data by the CLI
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *, beta: float = 1.0,
                  lam: float = 0.5, pair_source: str = "other_trajectory", lambda_on_preferred: bool = False,
                  squared_distance: bool = False, backbone: TransformerConfig = DEFAULT_BACKBONE,
@@ -116,6 +123,8 @@ class ICPOModule(InContextModule):
         else:
             pairs = context
             outputs = self.policy(context, pairs.states, torch.full((t,), t, device=context.states.device))
+        if has_soft_labels(pairs.preferred):
+            return self._soft_loss(outputs, pairs)
         plus, minus = preferred_first(pairs)
         if self.action_spec.discrete:
             logp = outputs.log_softmax(-1)
@@ -128,3 +137,19 @@ class ICPOModule(InContextModule):
                                         hp.squared_distance)
             agree = ((outputs - plus).norm(dim=-1) < (outputs - minus).norm(dim=-1)).float().mean()
         return loss, {"pair_agreement": agree}
+
+    def _soft_loss(self, outputs: Tensor, pairs: StepPreferenceContext) -> tuple[Tensor, dict[str, Tensor]]:
+        """y ℓ(a ≻ a') + (1 − y) ℓ(a' ≻ a) of each scored comparison (``losses.soft_label_loss``), and the
+        agreement with the labels (a tie counts one half, whichever order the policy favours)."""
+        hp, a, b, y = self.hparams, pairs.actions, pairs.alt_actions, pairs.preferred
+        if self.action_spec.discrete:
+            logp = outputs.log_softmax(-1)
+            lp_a, lp_b = logp.gather(-1, a[..., None]).squeeze(-1), logp.gather(-1, b[..., None]).squeeze(-1)
+            first, second = icpo_loss(lp_a, lp_b, hp.beta, hp.lam, False), icpo_loss(lp_b, lp_a, hp.beta, hp.lam, False)
+            a_favoured = lp_a > lp_b
+        else:
+            args = (hp.beta, hp.lam, hp.lambda_on_preferred, hp.squared_distance, False)
+            first, second = icpo_continuous_loss(outputs, a, b, *args), icpo_continuous_loss(outputs, b, a, *args)
+            a_favoured = (outputs - a).norm(dim=-1) < (outputs - b).norm(dim=-1)
+        agree = torch.where(a_favoured, y, 1 - y).mean()
+        return soft_label_loss(first, second, y), {"pair_agreement": agree}

@@ -9,6 +9,9 @@
   −log σ(β (‖a⁻ − μ‖ − ‖a⁺ − μ‖)) with μ = T_θ(s, D); the derivation's squared norms via
   ``squared=True``; λ scales the non-preferred distance, or the preferred one with
   ``lambda_on_preferred=True`` (the paper's Meta-World ablation).
+* ``soft_label_loss`` — a comparison whose label y lies between 0 and 1 (a person's tie: y = 1/2, as B-Pref
+  trains on an "equal" answer): y ℓ(first won) + (1 − y) ℓ(second won), the expected loss under the label; for
+  y ∈ {0, 1} it is the loss of the order the label names. ICPO's losses take ``reduce=False`` for it.
 * ``trajectory_preference_loss`` — RewardGen, paper eq. (L_R^T):
   −log σ(Σ_h R_ψ(s⁺_h, a⁺_h | D^T) − Σ_h R_ψ(s⁻_h, a⁻_h | D^T)), written for a labeled pair (ξ_a, ξ_b, y).
 * ``dit_value_loss`` — DIT's in-context Q̂ and V̂, paper eq. (dit-loss): (Q̂ − G)² + (V̂ − G)² on discounted
@@ -38,20 +41,28 @@ def supervised_action_loss(outputs: Tensor, optimal_actions: Tensor, discrete: b
     return (outputs - optimal_actions).pow(2).sum(-1).mean()
 
 
-def icpo_loss(logp_preferred: Tensor, logp_rejected: Tensor, beta: float, lam: float) -> Tensor:
-    """Mean of −log σ(β (log T(a⁺) − λ log T(a⁻))) over all comparisons."""
-    return -F.logsigmoid(beta * (logp_preferred - lam * logp_rejected)).mean()
+def icpo_loss(logp_preferred: Tensor, logp_rejected: Tensor, beta: float, lam: float, reduce: bool = True) -> Tensor:
+    """Mean of −log σ(β (log T(a⁺) − λ log T(a⁻))) over all comparisons (each one's with ``reduce=False``)."""
+    loss = -F.logsigmoid(beta * (logp_preferred - lam * logp_rejected))
+    return loss.mean() if reduce else loss
 
 
 def icpo_continuous_loss(mean: Tensor, preferred: Tensor, rejected: Tensor, beta: float, lam: float = 1.0,
-                         lambda_on_preferred: bool = False, squared: bool = False) -> Tensor:
+                         lambda_on_preferred: bool = False, squared: bool = False, reduce: bool = True) -> Tensor:
     """mean, preferred, rejected (..., A) -> mean of −log σ(β (λ⁻ d(a⁻, μ) − λ⁺ d(a⁺, μ)))."""
     d_plus = (preferred - mean).pow(2).sum(-1)
     d_minus = (rejected - mean).pow(2).sum(-1)
     if not squared:
         d_plus, d_minus = d_plus.clamp_min(1e-12).sqrt(), d_minus.clamp_min(1e-12).sqrt()
     margin = d_minus - lam * d_plus if lambda_on_preferred else lam * d_minus - d_plus
-    return -F.logsigmoid(beta * margin).mean()
+    loss = -F.logsigmoid(beta * margin)
+    return loss.mean() if reduce else loss
+
+
+def soft_label_loss(loss_first: Tensor, loss_second: Tensor, preferred: Tensor) -> Tensor:
+    """Mean of y ℓ₁ + (1 − y) ℓ₂: ℓ₁ / ℓ₂ each comparison's loss if the first / second of its pair won, y its
+    label in [0, 1] (1/2: a tie weighs both orders equally). All shaped alike."""
+    return (preferred * loss_first + (1 - preferred) * loss_second).mean()
 
 
 def trajectory_preference_loss(returns_a: Tensor, returns_b: Tensor, preferred: Tensor) -> Tensor:

@@ -59,6 +59,7 @@ REWARD_GEN_BACKBONE = TransformerConfig(n_layer=4, n_embd=32, n_head=4)  # R_ψ'
 
 class RewardGenModule(L.LightningModule):
     consumes = ("trajectory_preference",)  # the data kind it trains on (checked by the CLI)
+    soft_labels = True  # its Bradley–Terry cross-entropy takes a label in [0, 1]: a tie (1/2) as it is
     needs_query_labels = False
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,

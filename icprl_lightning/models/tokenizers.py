@@ -10,6 +10,10 @@
   sees the first t tokens sees both trajectories up to step t, exactly like an I-PRL context prefix.
 * Reward trajectories (s, a, r) for DIT, with true rewards or RewardGen's estimates.
 
+A soft label y ∈ (0, 1) (a person's tie, 1/2) has no winner to put first: its token is y E(a first) + (1 − y)
+E(a' first), the label's expectation of the two orders' tokens (the embeddings are linear), so a tie's token is
+symmetric in the pair. Contexts of labels 0 and 1 take the winner-first path unchanged.
+
 Discrete actions enter as one-hot vectors, continuous ones as they are (``ActionSpec.encode``).
 """
 
@@ -25,6 +29,7 @@ from icprl_lightning.contexts import (
     StepPreferenceContext,
     TrajectoryPreferenceContext,
 )
+from icprl_lightning.preferences import has_soft_labels
 
 
 def preferred_first(context: StepPreferenceContext) -> tuple[Tensor, Tensor]:
@@ -43,8 +48,12 @@ class StepPreferenceTokenizer(nn.Module):
         self.embed = nn.Linear(state_dim + 2 * action_spec.size, n_embd)
 
     def forward(self, context: StepPreferenceContext) -> Tensor:
-        plus, minus = preferred_first(context)
         enc = self.action_spec.encode
+        if has_soft_labels(context.preferred):  # y E(a ≻ a') + (1 − y) E(a' ≻ a): a tie's token is both orders' mean
+            a, b, y = enc(context.actions), enc(context.alt_actions), context.preferred[..., None]
+            return (y * self.embed(torch.cat([context.states, a, b], dim=-1))
+                    + (1 - y) * self.embed(torch.cat([context.states, b, a], dim=-1)))
+        plus, minus = preferred_first(context)
         return self.embed(torch.cat([context.states, enc(plus), enc(minus)], dim=-1))  # (B, T, D)
 
 
@@ -77,8 +86,14 @@ class TrajectoryPreferenceTokenizer(nn.Module):
         self.embed_rejected = nn.Linear(state_dim + action_spec.size, n_embd)
 
     def forward(self, context: TrajectoryPreferenceContext) -> Tensor:
-        s_plus, a_plus, s_minus, a_minus = preferred_trajectory_first(context)
         enc = self.action_spec.encode
+        if has_soft_labels(context.preferred):  # a tie's tokens are the mean of both orders' (as for steps)
+            a = torch.cat([context.states_a, enc(context.actions_a)], dim=-1)
+            b = torch.cat([context.states_b, enc(context.actions_b)], dim=-1)
+            y = context.preferred.reshape(-1, 1, 1)
+            return (y * (self.embed_preferred(a) + self.embed_rejected(b))
+                    + (1 - y) * (self.embed_preferred(b) + self.embed_rejected(a)))
+        s_plus, a_plus, s_minus, a_minus = preferred_trajectory_first(context)
         return (self.embed_preferred(torch.cat([s_plus, enc(a_plus)], dim=-1))
                 + self.embed_rejected(torch.cat([s_minus, enc(a_minus)], dim=-1)))  # (B, H, D)
 

@@ -5,11 +5,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from io import StringIO
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +29,6 @@ from icprl_lightning.annotators import (
     HTTPAnnotator,
     ScriptedTeacher,
     StepQueries,
-    TerminalAnnotator,
     TrajectoryQueries,
 )
 from icprl_lightning.annotators.labels import check_labels, count_labels, resolve_labels
@@ -297,102 +294,6 @@ def test_http_template_fields_are_checked():
         HTTPAnnotator("http://127.0.0.1:1", max_reply_bytes=0)
     args = HTTPAnnotator("http://[::1]:8/x", follow_redirects=True, max_reply_bytes=10).init_args()
     assert (args["follow_redirects"], args["max_reply_bytes"]) == (True, 10)
-
-
-# ---- TerminalAnnotator ---------------------------------------------------------------------------------------
-def test_terminal_draws_the_grid_and_reads_keys_from_streams():
-    out = StringIO()
-    annotator = TerminalAnnotator(grid_size=5, input=StringIO("x\n2\n\nE\ns\n1\n"), output=out)
-    pair = darkroom_pair()
-    y = annotator.label_trajectories(TrajectoryQueries(*[np.concatenate([f] * 4) for f in pair[:6]],
-                                                       np.array([[3, 0]] * 4)), None)
-    assert y.tolist() == [SECOND, EQUAL, SKIP, FIRST]  # "x" and the empty line are asked again
-    text = out.getvalue()
-    assert " 0 * * * G .\n   0 1 2 3 4" in text  # row y = 0: both paths over (0..3, 0), the goal at (3, 0)
-    assert text.count("[query ") == 4
-
-
-def test_terminal_step_query_and_end_of_input():
-    out = StringIO()
-    q = StepQueries(np.array([[1.0, 1.0]], np.float32), np.array([0]), np.array([2]), np.zeros(1), np.zeros(1),
-                    np.array([[1, 4]]))
-    assert TerminalAnnotator(input=StringIO("1\n"), output=out).label_steps(q, None).tolist() == [FIRST]
-    assert "Agent at (1, 1), goal (1, 4)" in out.getvalue() and "1: up" in out.getvalue()
-    with pytest.raises(AnnotatorError, match="input ended"):
-        TerminalAnnotator(input=StringIO(""), output=StringIO()).label_steps(q, None)
-
-
-def test_terminal_reads_single_keys_from_a_pseudo_terminal():
-    master, slave = os.openpty()
-    with os.fdopen(slave, "r") as tty_in:
-        os.write(master, b"q2e")  # an unknown key, then two answers, typed ahead without Enter
-        annotator = TerminalAnnotator(input=tty_in, output=StringIO())
-        pair = darkroom_pair()
-        y = annotator.label_trajectories(TrajectoryQueries(*[np.concatenate([f] * 2) for f in pair[:6]]), None)
-    os.close(master)
-    assert y.tolist() == [SECOND, EQUAL]
-
-
-def test_terminal_defaults_label_on_a_terminal():
-    """With no streams passed, stdin/stdout are used when both are terminals (here pseudo-terminals)."""
-    master_in, slave_in = os.openpty()
-    master_out, slave_out = os.openpty()
-    with os.fdopen(slave_in, "r") as tty_in, os.fdopen(slave_out, "w") as tty_out:
-        os.write(master_in, b"1")
-        with pytest.MonkeyPatch.context() as mp:
-            mp.setattr("sys.stdin", tty_in)
-            mp.setattr("sys.stdout", tty_out)
-            y = TerminalAnnotator().label_trajectories(darkroom_pair(), None)
-        assert y.tolist() == [FIRST]
-        assert b"[query 1]" in os.read(master_out, 65536)
-    os.close(master_in)
-    os.close(master_out)
-
-
-def closed_stream() -> StringIO:
-    stream = StringIO()
-    stream.close()
-    return stream
-
-
-@pytest.mark.parametrize(("stdin", "stdout", "message"), [
-    (StringIO("1\n"), "tty", "stdin is not a TTY"),
-    (None, "tty", "stdin is missing \\(None\\)"),
-    ("closed", "tty", "stdin is closed"),
-    ("tty", StringIO(), "stdout is not a TTY"),
-    ("tty", None, "stdout is missing \\(None\\)"),
-    ("tty", "closed", "stdout is closed"),
-])
-def test_terminal_without_an_interactive_terminal_refuses_before_drawing(monkeypatch, stdin, stdout, message):
-    master, slave = os.openpty()
-    with os.fdopen(slave, "w") as tty_stream:  # only asked isatty()
-        pick = {"tty": tty_stream, "closed": closed_stream()}
-        monkeypatch.setattr("sys.stdin", pick.get(stdin, stdin) if isinstance(stdin, str) else stdin)
-        monkeypatch.setattr("sys.stdout", pick.get(stdout, stdout) if isinstance(stdout, str) else stdout)
-        with pytest.raises(AnnotatorError, match=f"needs an interactive terminal: {message}; use HTTPAnnotator"):
-            TerminalAnnotator().label_trajectories(darkroom_pair(), None)
-        monkeypatch.undo()
-    os.close(master)
-    if isinstance(stdout, StringIO):
-        assert stdout.getvalue() == ""  # nothing drawn for nobody
-
-
-def test_terminal_streams_passed_in_need_not_be_terminals_but_must_be_open():
-    assert TerminalAnnotator(input=StringIO("2\n"), output=StringIO()).label_trajectories(darkroom_pair(), None) \
-        .tolist() == [SECOND]
-    with pytest.raises(AnnotatorError, match="TerminalAnnotator: the input stream passed in is closed"):
-        TerminalAnnotator(input=closed_stream(), output=StringIO()).label_trajectories(darkroom_pair(), None)
-    with pytest.raises(AnnotatorError, match="TerminalAnnotator: the output stream passed in is closed"):
-        TerminalAnnotator(input=StringIO("1\n"), output=closed_stream()).label_trajectories(darkroom_pair(), None)
-
-
-def test_terminal_failing_mid_query_is_an_annotator_error():
-    class HungUp(StringIO):
-        def readline(self, *args):
-            raise OSError(5, "Input/output error")
-
-    with pytest.raises(AnnotatorError, match="terminal failed while asking query 1: OSError: .*Input/output error"):
-        TerminalAnnotator(input=HungUp(), output=StringIO()).label_trajectories(darkroom_pair(), None)
 
 
 # ---- settings take an annotator --------------------------------------------------------------------------------

@@ -33,6 +33,7 @@ LAYERS = [
     ("deploy", "checkpoints", "online", "hub"),     # Agent / load_agent; safe checkpoint files (methods by the
                                                     # registry's names, imported only when registered)
     ("methods",),                                   # LightningModules
+    ("labelling",),                                 # the labelling page's server, answer log, export, online page
     ("evaluation",),                                # rollouts and duels through the Agent
     ("callbacks",),
     ("baselines",),                                 # SB3 from scratch

@@ -21,13 +21,11 @@ become T-PRL pairs (ξ_a = segment 1). ``--label-convention imitation`` (default
 that segment 1 is preferred, in {0, 0.5, 1}. ``bpref``: B-Pref's ``1 * (return_1 < return_2)``, so 1 means
 segment **2** won, and −1 (or 0.5) marks "equally preferable".
 
-**Ties (0.5).** No method of this package trains on a soft label: ``icpo_loss`` scores the winner and the loser,
-every context encoder (``models/tokenizers.py``) orders a pair by ``preferred > 0.5``, and ``contexts.py`` and
-``data/schema.py`` accept labels in {0, 1} only. RewardGen's ``trajectory_preference_loss`` (binary cross
-entropy) would take a 0.5 target, but its context encoder would not. So a tie is never stored as 0.5 nor turned
-into a hard label: ``--ties refuse`` (default) stops with the number of tie rows, ``--ties drop`` imports the
-others (``source_row`` still names each kept row's row in the source, and the manifest's info says how many
-were dropped).
+**Ties (0.5).** ICPO and RewardGen train on soft labels, from a dataset whose manifest says ``soft_labels``
+(``icprl label --export`` writes them; every other method refuses one). This import keeps labels of 0 and 1: a
+tie is never stored as 0.5 nor turned into a hard label here: ``--ties refuse`` (default) stops with the number
+of tie rows, ``--ties drop`` imports the others (``source_row`` still names each kept row's row in the source,
+and the manifest's info says how many were dropped).
 
 Either way the result goes through ``importer.import_preferences``: the same field checks, dtypes, task split
 and store layout as an ``.npz`` import.
@@ -199,10 +197,10 @@ def label_arrays(arrays: Mapping[str, np.ndarray], convention: str = "imitation"
     tie = (label == TIE) | (label == -1.0)
     n_ties = int(tie.sum())
     if n_ties and ties == "refuse":
-        raise ValueError(f"field 'label' holds {n_ties} ties (equally preferable pairs) among {len(label)} rows; no "
-                         "method here trains on soft labels (ICPO's loss and every context encoder read a label as 0 "
-                         "or 1), so a tie is neither stored as 0.5 nor guessed: pass --ties drop (ties='drop') to "
-                         f"import the other {len(label) - n_ties} rows")
+        raise ValueError(f"field 'label' holds {n_ties} ties (equally preferable pairs) among {len(label)} rows; this "
+                         "import keeps labels of 0 or 1 (only icprl label --export writes ties as 0.5, for ICPO and "
+                         "RewardGen), so a tie is neither stored as 0.5 nor guessed: pass --ties drop (ties='drop') "
+                         f"to import the other {len(label) - n_ties} rows")
     keep = np.flatnonzero(~tie)
     if keep.size == 0:
         raise ValueError(f"field 'label': all {len(label)} rows are ties; nothing is left to import")
