@@ -8,7 +8,6 @@ from pathlib import Path
 import icprl_lightning.reproduce.runner as source
 from icprl_lightning.reproduce.experiments import EXPERIMENTS, TableError, load_table, load_tables
 from icprl_lightning.reproduce.runner import RecordError, redraw, reproduce
-from icprl_lightning.reproduce.tables import OnlineEvaluation
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -46,7 +45,7 @@ def main(argv: list[str] | None = None) -> dict:
         if args.list or args.table is None:
             for table in load_tables().values():
                 runs = f"{len(table.runs)} runs of {table.runs_from}" if table.runs_from else f"{len(table.runs)} runs"
-                online = " (online)" if any(isinstance(e, OnlineEvaluation) for e in table.evaluations) else ""
+                online = " (online)" if any(e.online for e in table.evaluations) else ""
                 print(f"{table.name}: {table.title}{online}; {runs} × seeds; {table.budget}")
             return {}
         table = load_table(args.table)

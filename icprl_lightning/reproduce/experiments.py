@@ -202,7 +202,7 @@ class _Reader:
         for key in ("budget", "figure"):
             if key in data:
                 values[key] = self.text(key, data[key])
-        if values.get("baselines") and any(isinstance(e, ADEvaluation) for e in values.get("evaluations", ())):
+        if values.get("baselines") and any(not e.takes_baselines for e in values.get("evaluations", ())):
             self.fail("baselines", "an ad evaluation takes none: its references are the source learner and the "
                                    "optimum (draw an online result beside it with ad.against)")
         if values.get("figure"):

@@ -43,15 +43,10 @@ import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
-import yaml
-
 from icprl_lightning.io import write_json_atomic
 from icprl_lightning.reproduce.figures import FIGURES, curve_figure
 from icprl_lightning.reproduce.fit_logs import final_epoch_means, learning_curve
 from icprl_lightning.reproduce.tables import (
-    ADEvaluation,
-    Evaluation,
-    OnlineEvaluation,
     Run,
     Table,
     needed_runs,
@@ -109,84 +104,6 @@ def fit_inputs(run: Run, command: list[str], needed_inputs: tuple[str, ...] = ()
     for inputs in needed_inputs:
         digest.update(b"\0" + inputs.encode())
     return digest.hexdigest()
-
-
-def saved_config(checkpoints: list[str]) -> Path:
-    """The ``config.yaml`` a run's first training seed saved: it names the run's exact dataset (configs, overlays
-    and overrides)."""
-    return Path(checkpoints[0]).parent.parent / "config.yaml"
-
-
-def evaluate_command(table: Table, evaluation: Evaluation, checkpoints: dict[str, list[str]], out_dir: Path
-                     ) -> list[str]:
-    command = ["icprl", "evaluate", "--title", table.title, "--seeds", *map(str, table.eval_seeds),
-               *evaluation.flags, "--out", str(out_dir / f"{table.name}{evaluation.suffix}")]
-    if table.contexts != ("own",):
-        command += ["--contexts", *table.contexts]
-    for path in evaluation.data:
-        command += ["--data", path]
-    for run in (r for r in table.runs if r.evaluated):
-        command += ["--run", f"{run.name}={saved_config(checkpoints[run.name])}:{','.join(checkpoints[run.name])}"]
-    for baseline in table.baselines:
-        command += ["--baseline", baseline]
-    return command
-
-
-def is_ad_run(config: Path) -> bool:
-    """Whether a run's saved config trains Algorithm Distillation (an online deployment plays it as the ``ad`` row)."""
-    if not config.is_file():
-        return False
-    model = (yaml.safe_load(config.read_text()) or {}).get("model") or {}
-    return isinstance(model, dict) and model.get("class_path") == "icprl_lightning.methods.ad.ADModule"
-
-
-def evaluate_online(table: Table, evaluation: OnlineEvaluation, checkpoints: dict[str, list[str]], out_dir: Path
-                    ) -> dict:
-    """Deploy every evaluated run of ``table`` online as ``evaluation`` says (each run's training seeds are its
-    ``checkpoints``, its dataset the ``saved_config`` of the first), episode seeds ``table.eval_seeds``, beside
-    ``table.baselines``; write ``<out_dir>/<table><suffix>.json`` (and ``.png`` with ``evaluation.figure``) and
-    return what it records of the evaluation."""
-    from icprl_lightning.evaluation.online_command import evaluate_online as deploy_online
-
-    runs = [r for r in table.runs if r.evaluated]
-    if len(runs) != 1:
-        raise ValueError(f"{table.name}: an online evaluation deploys one run, the table has "
-                         f"{[r.name for r in runs]}")
-    (run,) = runs
-    baselines = dict(b.split("=", 1) for b in table.baselines)
-    unknown = sorted(set(baselines) - {"DQN from scratch"})
-    if unknown:
-        raise ValueError(f"{table.name}: online evaluations take only the 'DQN from scratch' baseline, got {unknown}")
-    out = out_dir / f"{table.name}{evaluation.suffix}"
-    config = saved_config(checkpoints[run.name])
-    ad = is_ad_run(config)
-    policies, ad_checkpoints = (list(evaluation.beside), checkpoints[run.name]) if ad else (checkpoints[run.name], None)
-    result = deploy_online([evaluation.data or config], policies, rules=evaluation.rules,
-                           labels=evaluation.labels, seeds=table.eval_seeds, episodes=evaluation.episodes,
-                           quality=evaluation.quality, rounds=evaluation.rounds, n_problems=evaluation.problems,
-                           dqn=baselines.get("DQN from scratch") if evaluation.labels == "own" else None,
-                           out=out if evaluation.figure else None, ad_checkpoints=ad_checkpoints)
-    if not evaluation.figure:
-        write_json_atomic(f"{out}.json", result)
-    return {"out": f"{out}.json", "run": run.name}
-
-
-def evaluate_ad(table: Table, evaluation: ADEvaluation, checkpoints: dict[str, list[str]], out_dir: Path) -> dict:
-    """AD's learning curve (``icprl evaluate ad``) of every evaluated run of ``table`` (each run's training seeds
-    are its ``checkpoints``, its data the ``saved_config`` of the first), episode seeds ``table.eval_seeds``, for
-    ``evaluation.episodes`` episodes beside ``evaluation.against``; writes ``<out_dir>/<table><suffix>`` (``.json``,
-    ``.md``, ``.png``) and returns what it records of the evaluation."""
-    from icprl_lightning.evaluation.ad_command import ad_markdown
-    from icprl_lightning.evaluation.ad_command import evaluate_ad as deploy_ad
-
-    if table.baselines:
-        raise ValueError(f"{table.name}: an ad evaluation takes no baselines (its reference is the source learner), "
-                         f"got {list(table.baselines)}")
-    runs = {r.name: (str(saved_config(checkpoints[r.name])), checkpoints[r.name]) for r in table.runs if r.evaluated}
-    out = out_dir / f"{table.name}{evaluation.suffix}"
-    print(ad_markdown(deploy_ad(runs, evaluation.episodes, table.eval_seeds, out, table.title,
-                                dict(evaluation.against))), end="", flush=True)
-    return {"out": f"{out}.json", "runs": list(runs), "episodes": evaluation.episodes}
 
 
 def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: int, which: str = "last") -> dict:
@@ -286,16 +203,7 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
     evaluations = []
     for evaluation in table.evaluations if any(run.evaluated for run in table.runs) else ():
         began = time.time()
-        if isinstance(evaluation, OnlineEvaluation):
-            record = {"online": evaluate_online(table, evaluation, checkpoints, out_dir)}
-        elif isinstance(evaluation, ADEvaluation):
-            record = {"ad": evaluate_ad(table, evaluation, checkpoints, out_dir)}
-        else:
-            command = evaluate_command(table, evaluation, checkpoints, out_dir)
-            # run as recorded, in a process of its own like every fit (and the commands room stays above this one)
-            if subprocess.run([sys.executable, "-m", "icprl_lightning", *command[1:]]).returncode != 0:
-                raise RuntimeError(f"{shlex.join(command)} failed; its output is above")
-            record = {"command": shlex.join(command)}
+        record = evaluation.deploy(table, checkpoints, out_dir)
         evaluations.append({**record, "seconds": round(time.time() - began, 1)})
     if table.figure:
         FIGURES[table.figure](table, out_dir)
@@ -315,30 +223,19 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
 
 
 def redraw(table: Table, out_dir: Path) -> list[Path]:
-    """Redraw ``table``'s figures from the outputs a full run wrote to ``out_dir`` (each ``icprl evaluate``'s JSON,
-    the learning curves in ``<table>_reproduce.json``), without training or evaluating; returns the files read.
+    """Redraw ``table``'s figures from the outputs a full run wrote to ``out_dir`` (each evaluation's JSON, the
+    learning curves in ``<table>_reproduce.json``), without training or evaluating; returns the files read.
     An online evaluation draws its own figure when it runs."""
-    from icprl_lightning.evaluation.ad_command import ad_figure
-    from icprl_lightning.evaluation.base import evaluation_of
-    from icprl_lightning.evaluation.report import write_figures
-
-    offline = [e for e in table.evaluations if isinstance(e, Evaluation)]
-    ad = [out_dir / f"{table.name}{e.suffix}.json" for e in table.evaluations if isinstance(e, ADEvaluation)]
-    sources = [out_dir / f"{table.name}{e.suffix}.json" for e in offline] + ad + [
-        out_dir / f"{table.name}_reproduce.json"]
+    summary = out_dir / f"{table.name}_reproduce.json"
+    drawn = [(e, e.output(table, out_dir)) for e in table.evaluations if e.output(table, out_dir) is not None]
+    sources = [source for _, source in drawn] + [summary]
     missing = [str(p) for p in sources if not p.exists()]
     if missing:
         raise FileNotFoundError(f"--redraw draws from a full run's outputs; missing {', '.join(missing)}: run "
                                 f"`icprl reproduce {table.name}` first")
-    for source in sources[:-1]:
-        payload = json.loads(source.read_text())
-        if source in ad:
-            ad_figure(payload, source.with_suffix(".png"))
-        elif (registered := evaluation_of(payload)) is not None:
-            registered.figure(payload, source.with_suffix(".png"))
-        else:
-            write_figures(payload, source.with_suffix(""))
+    for evaluation, source in drawn:
+        evaluation.redraw(source)
     if table.figure:
         FIGURES[table.figure](table, out_dir)
-    curve_figure(table, json.loads(sources[-1].read_text())["learning_curves"], out_dir / f"{table.name}_curve.png")
+    curve_figure(table, json.loads(summary.read_text())["learning_curves"], out_dir / f"{table.name}_curve.png")
     return sources

@@ -6,6 +6,10 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, ClassVar
+
+from icprl_lightning.reproduce import deployments
 
 ALL_CONTEXTS = ("own", "random_labels", "flipped_labels", "other_task")
 
@@ -47,6 +51,20 @@ class Evaluation:
     suffix: str
     flags: tuple[str, ...]
     data: tuple[str, ...] = ()
+    online: ClassVar[bool] = False  # deployed from an empty context, asking as it acts
+    takes_baselines: ClassVar[bool] = True
+
+    def deploy(self, table: Table, checkpoints: dict[str, list[str]], out_dir: Path) -> dict[str, Any]:
+        """Run it on the table's trained runs (``checkpoints``: each run's training seeds); what the table's
+        ``_reproduce.json`` records of it."""
+        return deployments.deploy_offline(table, self, checkpoints, out_dir)
+
+    def output(self, table: Table, out_dir: Path) -> Path | None:
+        """The JSON it writes, which ``redraw`` draws its figures from (None: it draws its own when it runs)."""
+        return out_dir / f"{table.name}{self.suffix}.json"
+
+    def redraw(self, source: Path) -> None:
+        deployments.redraw_offline(source)
 
 
 @dataclass(frozen=True)
@@ -71,6 +89,17 @@ class OnlineEvaluation:
     figure: bool = False
     data: str | None = None
     beside: tuple[str, ...] = ()
+    online: ClassVar[bool] = True
+    takes_baselines: ClassVar[bool] = True  # only "DQN from scratch", drawn beside the curve
+
+    def deploy(self, table: Table, checkpoints: dict[str, list[str]], out_dir: Path) -> dict[str, Any]:
+        return {"online": deployments.deploy_online(table, self, checkpoints, out_dir)}
+
+    def output(self, table: Table, out_dir: Path) -> Path | None:
+        return None
+
+    def redraw(self, source: Path) -> None:
+        raise NotImplementedError("an online evaluation draws its figure when it runs")
 
 
 @dataclass(frozen=True)
@@ -84,6 +113,17 @@ class ADEvaluation:
     suffix: str
     episodes: int = 20
     against: tuple[tuple[str, str], ...] = ()
+    online: ClassVar[bool] = False
+    takes_baselines: ClassVar[bool] = False  # its reference is the source learner
+
+    def deploy(self, table: Table, checkpoints: dict[str, list[str]], out_dir: Path) -> dict[str, Any]:
+        return {"ad": deployments.deploy_ad(table, self, checkpoints, out_dir)}
+
+    def output(self, table: Table, out_dir: Path) -> Path | None:
+        return out_dir / f"{table.name}{self.suffix}.json"
+
+    def redraw(self, source: Path) -> None:
+        deployments.redraw_ad(source)
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.methods.ad import ADModule
 from icprl_lightning.methods.dpt import DPTModule
 from icprl_lightning.reproduce import render
-from icprl_lightning.reproduce.runner import evaluate_ad as runner_evaluate_ad
+from icprl_lightning.reproduce.deployments import deploy_ad as runner_evaluate_ad
 from icprl_lightning.reproduce.tables import ADEvaluation, Run, Table
 
 pytestmark = pytest.mark.usefixtures("one_thread")

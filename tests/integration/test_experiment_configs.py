@@ -30,7 +30,7 @@ from icprl_lightning.reproduce import (
     stages,
     table_names,
 )
-from icprl_lightning.reproduce.runner import evaluate_command
+from icprl_lightning.reproduce.deployments import evaluate_command
 
 EXPERIMENTS = REPO / "configs" / "experiment"
 HISTORY = re.compile(r"\bissue \d|\b(January|February|March|April|May|June|July|August|September|October|November|"

@@ -404,7 +404,9 @@ def test_a_table_of_another_tables_runs_shares_its_fits_and_evaluates_online_thr
         calls.append((evaluation.suffix, evaluation.labels, sorted(checkpoints)))
         return {"out": str(out_dir / f"{table.name}{evaluation.suffix}.json")}
 
-    monkeypatch.setattr(rep, "evaluate_online", fake_online)
+    from icprl_lightning.reproduce import deployments
+
+    monkeypatch.setattr(deployments, "deploy_online", fake_online)
     summary = reproduce(online, [0, 1], jobs=1, work=work, out_dir=out)
     assert calls == [("_active", "own", ["B"]), ("_flipped", "flipped", ["B"])]
     assert [e["online"]["out"] for e in summary["evaluations"]] == [str(out / "asked_active.json"),
