@@ -7,7 +7,8 @@ good one is gone. Here the temporary file is created in the target's own directo
 ``os.replace``-d over the target, a rename within one file system and so atomic: a reader sees the old
 file or the new one, never a part. If the target is a symlink (``ModelCheckpoint(save_last="link")``)
 the link itself is replaced by the file. On any failure the temporary file is removed and the error
-raised; the previous file is untouched. Remote (non-local) paths keep Lightning's own IO.
+raised; the previous file is untouched. Remote (non-local) paths keep Lightning's own IO. ``AsyncCheckpointIO``
+saves through this writer in its thread; any other checkpoint IO is refused (``use_atomic_saves``).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import lightning as L
 import torch
 from lightning.fabric.utilities.cloud_io import _is_local_file_protocol
 from lightning.pytorch.plugins.io import TorchCheckpointIO
+from lightning.pytorch.plugins.io.wrapper import _WrappingCheckpointIO
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
@@ -67,9 +69,23 @@ def _fsync_directory(directory: str) -> None:
 def use_atomic_saves(trainer: L.Trainer) -> None:
     """Make every checkpoint ``trainer`` saves atomic, whatever the callback that saves it.
 
-    Only Lightning's default IO is replaced: a strategy or plugin with its own IO (sharded, asynchronous,
-    remote) keeps it. Set on the strategy rather than passed as a Trainer plugin so that a config's own
-    ``trainer.plugins`` cannot silently drop it.
+    Lightning's default IO is replaced; a wrapper such as ``AsyncCheckpointIO`` (saves in a thread) keeps
+    wrapping, around the atomic writer instead of the plain one. Any other IO (a user's, a remote one) is
+    refused with a ``ValueError`` naming it, before anything is saved: it could leave a partial ``last.ckpt``.
+    Set on the strategy rather than passed as a Trainer plugin so that a config's own ``trainer.plugins``
+    cannot silently drop it.
     """
-    if type(trainer.strategy.checkpoint_io) is TorchCheckpointIO:
+    io = trainer.strategy.checkpoint_io
+    if type(io) is TorchCheckpointIO:
         trainer.strategy.checkpoint_io = AtomicCheckpointIO()
+        return
+    wrapper = None
+    while isinstance(io, _WrappingCheckpointIO):
+        wrapper, io = io, io.checkpoint_io
+    if wrapper is not None and (io is None or type(io) is TorchCheckpointIO):
+        wrapper._checkpoint_io = AtomicCheckpointIO()  # the setter keeps a configured base; this one is Lightning's
+    elif not isinstance(io, AtomicCheckpointIO):
+        raise ValueError(f"trainer.plugins: {type(io).__name__} writes checkpoints its own way, which can leave a "
+                         "partial last.ckpt; icprl_lightning writes every checkpoint atomically (AtomicCheckpointIO, "
+                         "callbacks/atomic_io.py): drop the plugin, or pass AsyncCheckpointIO without a checkpoint_io "
+                         "(it then saves through the atomic writer)")

@@ -134,7 +134,12 @@ class RunDirectory(Callback):
     def on_load_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
         # callbacks are restored before the fit loop makes its first iterator (which draws the shuffle)
         if "icprl_rng" in checkpoint:
-            _set_rng_state(checkpoint["icprl_rng"])
+            try:
+                _set_rng_state(checkpoint["icprl_rng"])
+            except (KeyError, TypeError, ValueError, IndexError, RuntimeError, AttributeError, OverflowError) as e:
+                # only a forged (resealed) file: the seal covers a damaged one
+                raise ValueError(f"the checkpoint's icprl_rng entry is not the RNG states a fit saves "
+                                 f"({type(e).__name__}: {str(e)[:200]}); resume from another checkpoint") from None
 
 
 def _epoch_of(path: str) -> str:

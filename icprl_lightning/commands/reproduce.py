@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 import icprl_lightning.reproduce.runner as source
+from icprl_lightning.reproduce.children import Interrupted, WorkLocked
 from icprl_lightning.reproduce.experiments import EXPERIMENTS, TableError, load_table, load_tables
 from icprl_lightning.reproduce.runner import RecordError, redraw, reproduce
 
@@ -56,5 +57,8 @@ def main(argv: list[str] | None = None) -> dict:
         return reproduce(table, args.seeds, args.jobs, Path(args.work), Path(args.out) / table.name, args.refit,
                          args.dry_run,
                          args.threads, args.only)
-    except (RecordError, TableError) as e:
+    except (RecordError, TableError, WorkLocked) as e:
         parser.exit(2, f"{parser.prog}: error: {e}\n")
+    except Interrupted as e:
+        parser.exit(128 + e.signum, f"{parser.prog}: {e}: the running fits were stopped and recorded as interrupted "
+                                    f"in {args.work}; run the same command again to resume them\n")

@@ -23,6 +23,7 @@ from typing import Any
 import lightning as L
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 
+from icprl_lightning.callbacks.atomic_io import use_atomic_saves
 from icprl_lightning.callbacks.defaults import default_callbacks
 from icprl_lightning.callbacks.run_directory import run_directory, unique_logger_versions
 from icprl_lightning.callbacks.run_logs import wandb_in_run_directory
@@ -170,6 +171,9 @@ TRAINER_DEFAULTS = {
 }
 
 
+PRECISIONS = ("32-true", "32", "bf16-mixed", "bf16", "16-mixed", "16")  # what trains (CPU included), with aliases
+
+
 class ICPRLCLI(LightningCLI):
     def parse_arguments(self, parser: LightningArgumentParser, args: Any) -> None:
         """As LightningCLI's, but a parse error is one ``CLIError`` line (``exit_on_error`` is off)."""
@@ -185,6 +189,10 @@ class ICPRLCLI(LightningCLI):
     def _instantiate_trainer(self, config: dict[str, Any], callbacks: list) -> L.Trainer:
         """As LightningCLI's, but ``--trainer.enable_checkpointing false`` also drops the default callbacks that
         save checkpoints (``LastCheckpoint``), which Lightning would otherwise refuse beside that flag."""
+        precision = config.get("precision")
+        if precision is not None and str(precision) not in PRECISIONS:  # before the Trainer imports or casts anything
+            raise CLIError(f"trainer.precision {str(precision)!r} is refused: the batches are float32, so the weights "
+                           f"stay float32 (autocast allowed); use one of {', '.join(PRECISIONS[::2])}")
         if config.get("enable_checkpointing") is False:
             from lightning.pytorch.callbacks import Checkpoint
 
@@ -245,6 +253,7 @@ class ICPRLCLI(LightningCLI):
             _verified_sizes_fit(self.model, ckpt, path)
 
     def before_fit(self) -> None:
+        use_atomic_saves(self.trainer)  # wraps or refuses the checkpoint IO before any data is generated
         unique_logger_versions(self.trainer)  # before Lightning makes the loggers' directories
         self.check_pairing()
         self.check_checkpoint_fits()

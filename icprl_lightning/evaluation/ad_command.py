@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from icprl_lightning.io import save_figure, write_atomic, write_json_atomic
+from icprl_lightning.untrusted import UntrustedFileError, read_json
 
 KIND = "ad_learning_curve"  # the JSON's ``kind``: how ``reproduce.render`` tells it from an ``icprl evaluate`` one
 SOURCE = "Q-learning (source)"
@@ -107,11 +108,11 @@ def read_against(name: str, path: str, family) -> dict[str, Any]:
 
     where = f"--against {name}={path}"
     try:
-        result = json.loads(Path(path).read_text())
+        result = read_json(path, "online result")
     except FileNotFoundError:
         raise ADInputError(f"{where}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ADInputError(f"{where}: not a JSON file ({e})") from None
+    except UntrustedFileError as e:
+        raise ADInputError(f"{where}: {e}") from None
     online = result.get("online") if isinstance(result, dict) else None
     if not isinstance(online, dict) or not online or "episodes_per_task" not in result:
         raise ADInputError(f"{where}: not the JSON of `icprl evaluate online` on an MDP family (no per-episode "

@@ -28,7 +28,6 @@ episode's end. Any family whose oracle has ``utility`` runs.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -46,6 +45,7 @@ from icprl_lightning.families.base import TaskFamily
 from icprl_lightning.io import save_figure
 from icprl_lightning.metrics import mean_sem, mean_sem_or_none, per_task_mean
 from icprl_lightning.online import PAIR_RULES, OnlineAgent
+from icprl_lightning.untrusted import read_json
 
 LABELS = ("own", "flipped", "random")
 DQN_EPISODES = (5, 10, 20, 50, 100)
@@ -118,7 +118,7 @@ def over_seeds(values: list[float]) -> dict[str, Any]:
 def dqn_curve(path: str | Path) -> dict[str, float]:
     """DQN-from-scratch's mean greedy evaluation return after N training episodes per goal (over goals × seeds)."""
     try:
-        data = json.loads(Path(path).read_text())
+        data = read_json(path, "`icprl baseline dqn` result")
         horizon = data["horizon"]
         curves = [run["eval_curve"] for goal in data["per_goal"] for run in goal["runs"]]
     except (OSError, ValueError, KeyError, TypeError) as e:

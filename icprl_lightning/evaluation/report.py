@@ -29,6 +29,7 @@ from rich.measure import Measurement
 from rich.table import Table
 
 from icprl_lightning.io import save_figure, write_atomic
+from icprl_lightning.untrusted import UntrustedFileError, read_json
 
 MDP_METRICS = ("return", "normalized_return", "success")
 REGRET_METRICS = (("weak_regret", "weak regret at h = H"), ("weak_regret_auc", "weak regret, mean over h = 1..H"),
@@ -118,9 +119,9 @@ def read_baseline(path: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise ValueError(f"--baseline {path}: no such file")
     try:
-        result = json.loads(path.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"--baseline {path} is not valid JSON ({e})") from None
+        result = read_json(path, "baseline result")
+    except UntrustedFileError as e:
+        raise ValueError(f"--baseline {e}") from None
     expected = f'a baselines/ result: a JSON object with {" / ".join(MDP_METRICS)} as {{"mean": x, "sem": s}}'
     if not isinstance(result, dict) or not any(m in result for m in MDP_METRICS):
         raise ValueError(f"--baseline {path} is not {expected}")

@@ -26,24 +26,25 @@ running the command again skips a fit whose inputs are unchanged, so an interrup
 where it stopped, and retrains one whose command or configs changed since, or whose recorded checkpoint
 file is gone (``--refit`` trains all again). Every record is read before the first fit starts: a damaged
 or foreign one (not JSON, or not a record's shape) is one error naming it, never a traceback mid-run.
-The command prints, and writes to ``docs/results/<table>/<table>_reproduce.json``, each stage's wall-clock
-seconds, the checkpoints and the exact commands.
+SIGTERM or SIGINT stops the running fits (each saves ``last.ckpt``), records them as interrupted and exits
+128 + the signal; the same command again resumes them (``children.py``); a second ``icprl reproduce`` in the
+same folder is refused. The command prints, and writes to ``docs/results/<table>/<table>_reproduce.json``, each
+stage's wall-clock seconds, the checkpoints and the exact commands.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
-import re
 import shlex
-import subprocess
-import sys
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 from icprl_lightning.io import write_json_atomic
+from icprl_lightning.reproduce.children import Children, Interrupted, run_fit, work_lock
 from icprl_lightning.reproduce.figures import FIGURES, curve_figure
 from icprl_lightning.reproduce.fit_logs import final_epoch_means, learning_curve
 from icprl_lightning.reproduce.tables import (
@@ -61,7 +62,7 @@ class RecordError(ValueError):
 
 
 def read_record(path: Path) -> dict | None:
-    """The fit record at ``path`` (None if there is none), checked to be what ``_run_fit`` writes: a JSON object
+    """The fit record at ``path`` (None if there is none), checked to be what ``children.run_fit`` writes: a JSON object
     whose ``checkpoint`` (and, if present, ``inputs_sha256``) is a string; anything else is a ``RecordError``."""
     if not path.exists():
         return None
@@ -106,25 +107,6 @@ def fit_inputs(run: Run, command: list[str], needed_inputs: tuple[str, ...] = ()
     return digest.hexdigest()
 
 
-def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: int, which: str = "last") -> dict:
-    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "WANDB_MODE": os.environ.get("WANDB_MODE", "disabled")}
-    start = time.time()
-    with open(log, "w") as out:
-        code = subprocess.run([sys.executable, "-m", "icprl_lightning",
-                               *command[1:]], stdout=out,
-                              stderr=subprocess.STDOUT, env=env).returncode
-    if code != 0:
-        raise RuntimeError(f"{shlex.join(command)} failed (exit {code}); its log: {log}")
-    # "last checkpoint (epoch 0, step 2): PATH" or "best checkpoint (val/loss = 0.5, epoch 3): PATH"
-    line = re.compile(rf"^{which} checkpoint(?: \(.*?\))?: (.+)$")
-    last = [m.group(1).strip() for m in map(line.match, log.read_text().splitlines()) if m]
-    if not last:
-        raise RuntimeError(f"{shlex.join(command)} printed no '{which} checkpoint' line; its log: {log}")
-    checkpoint = str(Path(last[-1]).absolute())  # the fit ran in this working directory
-    result = {"command": shlex.join(command), "inputs_sha256": inputs, "checkpoint": checkpoint,
-              "seconds": round(time.time() - start, 1)}
-    write_json_atomic(record, result)
-    return result
 
 
 def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Path, refit: bool = False,
@@ -160,7 +142,14 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
         command = fit_command(run, seed, root / "runs", paths)
         inputs = fit_inputs(run, command, tuple(n["inputs_sha256"] for n in needed))
         recorded = records.get((run.name, seed))
-        if recorded is not None and not Path(recorded["checkpoint"]).is_file():
+        resume = recorded is not None and recorded.get("status") == "interrupted"
+        if resume and recorded.get("inputs_sha256") == inputs and Path(recorded["checkpoint"]).is_file():
+            print(f"{run.name} seed {seed}: resuming the interrupted fit from {recorded['checkpoint']}", flush=True)
+            command = [*command, "--ckpt_path", recorded["checkpoint"]]  # its inputs stay those of the fit
+        elif resume:
+            print(f"{run.name} seed {seed}: interrupted before a checkpoint of these inputs; training it again",
+                  flush=True)
+        elif recorded is not None and not Path(recorded["checkpoint"]).is_file():
             print(f"{run.name} seed {seed}: the checkpoint {recorded['checkpoint']} recorded in {record} is gone; "
                   "training it again", flush=True)
         elif recorded is not None and recorded.get("inputs_sha256") == inputs:
@@ -172,26 +161,35 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
             print(shlex.join(command), flush=True)
             return None
         print(f"  training {run.name} seed {seed}", flush=True)
-        result = _run_fit(command, inputs, root / f"{slug(run.name)}-seed{seed}.log", record, threads, run.checkpoint)
+        result = run_fit(command, inputs, root / f"{slug(run.name)}-seed{seed}.log", record, threads, run.checkpoint,
+                          children)
         print(f"  {run.name} seed {seed}: {result['seconds']} s -> {result['checkpoint']}", flush=True)
         return result
 
     # A worker waits for the fits its run needs: they were submitted before it, so they are running or done
     # (never queued behind it), and a later stage starts as soon as its own seed's earlier stages are done.
     futures: dict[tuple[str, int], Future] = {}
-    with ThreadPoolExecutor(max_workers=1 if dry_run else jobs) as pool:
-        for run in order:
-            for seed in run_seeds[run.name]:
-                deps = [futures[(name, seed)] for _, names in run.needs for name in names]
+    children = Children()
+    pool = ThreadPoolExecutor(max_workers=1 if dry_run else jobs)
+    try:
+        with contextlib.nullcontext() if dry_run else work_lock(root), children.forwarding():
+            for run in order:
+                for seed in run_seeds[run.name]:
+                    deps = [futures[(name, seed)] for _, names in run.needs for name in names]
 
-                def task(run: Run = run, seed: int = seed, deps: list[Future] = deps) -> dict | None:
-                    return fit(run, seed, [d.result() for d in deps])
+                    def task(run: Run = run, seed: int = seed, deps: list[Future] = deps) -> dict | None:
+                        return fit(run, seed, [d.result() for d in deps])
 
-                futures[(run.name, seed)] = pool.submit(task)
-        for key, future in futures.items():
-            result = future.result()
-            if result is not None:
-                done[key] = result
+                    futures[(run.name, seed)] = pool.submit(task)
+            for key, future in futures.items():
+                result = future.result()
+                if result is not None:
+                    done[key] = result
+    except Interrupted:
+        children.wait()  # the fits were sent the signal: each saves, exits and is recorded as interrupted
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
     if dry_run:
         return {}
     fit_seconds = round(time.time() - start, 1)

@@ -130,7 +130,7 @@ def test_a_damaged_or_foreign_record_is_one_error_naming_it_before_any_fit(tmp_p
     def no_fit(*args, **kwargs):
         raise AssertionError("a fit started before the records were checked")
 
-    monkeypatch.setattr(rep, "_run_fit", no_fit)
+    monkeypatch.setattr(rep, "run_fit", no_fit)
     pair = tmp_path / "pair.yaml"  # a table of the user's own, named by its path
     pair.write_text("title: pair\nruns:\n  - {name: A, configs: [configs/icpo_darkroom.yaml]}\n"
                     "  - {name: B, configs: [configs/icpo_darkroom.yaml]}\n")
@@ -237,7 +237,7 @@ def test_a_later_stage_starts_as_soon_as_its_own_needs_are_done(tmp_path, monkey
 
     events, a_may_finish = [], threading.Event()
 
-    def fake_fit(command, inputs, log, record, threads, which="last"):
+    def fake_fit(command, inputs, log, record, threads, which="last", children=None):
         name = command[command.index("--trainer.logger.init_args.name") + 1]
         events.append(("start", name))
         if name.startswith("A-"):
@@ -249,7 +249,7 @@ def test_a_later_stage_starts_as_soon_as_its_own_needs_are_done(tmp_path, monkey
         return {"command": " ".join(command), "inputs_sha256": inputs, "checkpoint": f"{name[0].lower()}.ckpt",
                 "seconds": 0.0}
 
-    monkeypatch.setattr(rep, "_run_fit", fake_fit)
+    monkeypatch.setattr(rep, "run_fit", fake_fit)
     for name in "abc":
         (tmp_path / f"{name}.yaml").write_text("model: {}\n")
     table = Table("sched", "sched", (Run("A", (str(tmp_path / "a.yaml"),)), Run("B", (str(tmp_path / "b.yaml"),)),
@@ -264,19 +264,18 @@ def test_a_later_stage_starts_as_soon_as_its_own_needs_are_done(tmp_path, monkey
     ("last", "last checkpoint (epoch 0, step 2): {path}"), ("last", "last checkpoint: {path}"),
     ("best", "best checkpoint (val/loss = 0.25, epoch 3): {path}")])
 def test_a_fit_record_takes_the_checkpoint_the_fit_printed(tmp_path, monkeypatch, which, printed):
-    import subprocess
-
-    import icprl_lightning.reproduce.runner as rep
+    from icprl_lightning.reproduce.children import Children, run_fit
 
     path = tmp_path / "runs" / "a b" / "checkpoints" / f"{which}.ckpt"
 
-    def fake_fit(args, stdout, **kwargs):
-        stdout.write(f"Epoch 0: 100%\nbest checkpoint (val/loss = 9.0): /elsewhere.ckpt\n{printed.format(path=path)}\n"
-                     if which == "last" else f"last checkpoint: /elsewhere.ckpt\n{printed.format(path=path)}\n")
-        return subprocess.CompletedProcess(args, 0)
+    def fake_fit(self, argv, log, env):
+        best = "best checkpoint (val/loss = 9.0): /elsewhere.ckpt"
+        other = best if which == "last" else "last checkpoint: /elsewhere.ckpt"
+        log.write_text(f"Epoch 0: 100%\n{other}\n{printed.format(path=path)}\n")
+        return 0
 
-    monkeypatch.setattr(rep.subprocess, "run", fake_fit)
-    result = rep._run_fit(["icprl", "fit"], "digest", tmp_path / "fit.log", tmp_path / "rec.json", 1, which)
+    monkeypatch.setattr(Children, "run", fake_fit)
+    result = run_fit(["icprl", "fit"], "digest", tmp_path / "fit.log", tmp_path / "rec.json", 1, which, Children())
     assert result["checkpoint"] == str(path) and json.loads((tmp_path / "rec.json").read_text()) == result
 
 
@@ -314,7 +313,7 @@ def test_an_ad_run_plays_online_as_the_ad_row_on_the_data_and_beside_the_models_
     import icprl_lightning.evaluation.online_command as online_command
     import icprl_lightning.reproduce.runner as rep
 
-    def fake_fit(command, inputs, log, record, threads, which="last"):
+    def fake_fit(command, inputs, log, record, threads, which="last", children=None):
         run_dir = tmp_path / "runs" / command[command.index("--trainer.logger.init_args.name") + 1]
         (run_dir / "checkpoints").mkdir(parents=True)
         (run_dir / "config.yaml").write_text("model:\n  class_path: icprl_lightning.methods.ad.ADModule\n")
@@ -325,7 +324,7 @@ def test_an_ad_run_plays_online_as_the_ad_row_on_the_data_and_beside_the_models_
         return result
 
     deployed = []
-    monkeypatch.setattr(rep, "_run_fit", fake_fit)
+    monkeypatch.setattr(rep, "run_fit", fake_fit)
     monkeypatch.setattr(online_command, "evaluate_online",
                         lambda configs, checkpoints, **options: deployed.append((configs, checkpoints, options)) or {})
     monkeypatch.chdir(tmp_path)
@@ -351,7 +350,7 @@ def test_a_table_of_another_tables_runs_shares_its_fits_and_evaluates_online_thr
     seeds through the package's online evaluation (``evaluation/online_command.py``) with the table's options."""
     import icprl_lightning.reproduce.runner as rep
 
-    def fake_fit(command, inputs, log, record, threads, which="last"):
+    def fake_fit(command, inputs, log, record, threads, which="last", children=None):
         checkpoint = tmp_path / "ckpt" / f"{command[command.index('--trainer.logger.init_args.name') + 1]}.ckpt"
         checkpoint.parent.mkdir(exist_ok=True)
         checkpoint.write_bytes(b"")
@@ -359,7 +358,7 @@ def test_a_table_of_another_tables_runs_shares_its_fits_and_evaluates_online_thr
         record.write_text(json.dumps(result))
         return result
 
-    monkeypatch.setattr(rep, "_run_fit", fake_fit)
+    monkeypatch.setattr(rep, "run_fit", fake_fit)
     monkeypatch.chdir(tmp_path)
     (tmp_path / "a.yaml").write_text("model: {}\n")
     folder = tmp_path / "experiments"

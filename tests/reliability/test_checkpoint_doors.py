@@ -222,6 +222,18 @@ def test_a_resealed_nan_moment_is_refused_as_unusable(trained, tmp_path, capsys)
              "is unusable: optimizer_states.0.state.")
 
 
+@pytest.mark.parametrize("forge", [
+    lambda rng: rng.update(python=[3, [1, 2], None]),
+    lambda rng: rng.update(numpy=["MT19937", torch.zeros(3, dtype=torch.int64), 0, 0, 0.0]),
+    lambda rng: rng.update(torch=torch.zeros(3, dtype=torch.uint8)),
+    lambda rng: rng.pop("numpy"),
+])
+def test_a_resealed_forged_rng_entry_is_one_error_naming_it(trained, tmp_path, capsys, forge):
+    bad = _rewrite(trained["path"], tmp_path / "rng.ckpt", lambda c: forge(c["icprl_rng"]), reseal=True)
+    _refused(capsys, ["fit", *trained["args"], "--ckpt_path", str(bad)],
+             "the checkpoint's icprl_rng entry is not the RNG states a fit saves")
+
+
 def test_a_resume_needs_the_seal_but_weights_alone_do_not(trained, tmp_path, capsys):
     old = _rewrite(trained["path"], tmp_path / "old.ckpt", lambda c: c.pop(SEAL_KEY))
     _refused(capsys, ["fit", *trained["args"], "--ckpt_path", str(old)], f"has no {SEAL_KEY}")

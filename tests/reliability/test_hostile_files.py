@@ -25,6 +25,7 @@ from icprl_lightning.checkpoints import CHECKSUM_KEY, CLASS_KEY, checkpoint_for_
 from icprl_lightning.commands.checkpoint import main as checkpoint_main
 from icprl_lightning.data.importer import import_preferences
 from icprl_lightning.data.interop.provenance import ExportError, parse
+from icprl_lightning.data.store import SCHEMA_VERSION as STORE_SCHEMA
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.metaworld_reach.sac_weights import CHECKSUMS, MANIFEST, ExportedSAC
 from icprl_lightning.hub import CONFIG, WEIGHTS, export_model
@@ -133,6 +134,35 @@ def test_a_hostile_json_is_one_error_naming_the_file_at_each_door(model_dir, tmp
         read_record(record)
     with pytest.raises(ExportError, match=rf"data.parquet: its 'icprl' metadata {problem}"):
         parse(text, "data.parquet")
+
+
+def _provenance(**edit) -> str:
+    files = {"train/states.npy": {"shape": [2, 3], "dtype": "float32", "sha256": "ab"}}
+    found = {"export_version": 1, "manifest": {"schema_version": STORE_SCHEMA, "files": files, "config": {}},
+             "tables": {"train": ["train", ["states"]]}}
+    for path, value in edit.items():
+        *parents, leaf = path.split(".")
+        node = found
+        for key in parents:
+            node = node[key]
+        node[leaf] = value
+    return json.dumps(found)
+
+
+@pytest.mark.parametrize("edit, field", [
+    ({"manifest.config": [1]}, "manifest.config must be a mapping"),
+    ({"manifest.files": {"states.npy": {"shape": [1], "dtype": "f4", "sha256": "a"}}}, "named <split>/<field>.npy"),
+    ({"manifest.files": {"train/states.npy": [1, 2]}}, "must be a mapping with a sha256 string"),
+    ({"manifest.files": {"train/states.npy": {"shape": "2x3", "dtype": "f4", "sha256": "a"}}}, ".shape must be"),
+    ({"manifest.files": {"train/states.npy": {"shape": [-1], "dtype": "f4", "sha256": "a"}}}, ".shape must be"),
+    ({"manifest.files": {"train/states.npy": {"shape": [2], "dtype": "O", "sha256": "a"}}}, ".dtype must be"),
+    ({"manifest.files": {"train/states.npy": {"shape": [2], "sha256": "a"}}}, ".dtype must be"),
+    ({"tables": {"train": "train"}}, "tables['train'] must be [split, [field, ...]]"),
+])
+def test_forged_export_metadata_is_one_error_naming_the_field(edit, field):
+    parse(_provenance(), "x.parquet")  # the control: the unedited metadata parses
+    with pytest.raises(ExportError, match=rf"^x.parquet: its 'icprl' metadata's .*{re.escape(field)}"):
+        parse(_provenance(**edit), "x.parquet")
 
 
 @pytest.mark.parametrize("text, problem", [(DEEP_YAML, f"nests deeper than {MAX_DEPTH} levels"),

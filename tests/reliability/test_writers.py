@@ -16,6 +16,7 @@ from factories import save_untrained
 
 from icprl_lightning.commands.report import main as report_main
 from icprl_lightning.data.importer import import_preferences
+from icprl_lightning.data.interop import export_dataset
 from icprl_lightning.evaluation.report import write_outputs
 from icprl_lightning.hub import export_model
 from icprl_lightning.io import NotReplaceableError, save_figure, write_atomic, write_json_atomic
@@ -134,8 +135,10 @@ def test_exports_and_imports_refuse_a_link_or_fifo_at_their_output(tmp_path, no_
     victim_dir = tmp_path / "victim"
     victim_dir.mkdir()
     (victim_dir / "keep.txt").write_text(PRECIOUS)
+    dataset = import_preferences(arrays, tmp_path / "ds", n_actions=5).path
     for name, write in (("export", lambda out, ow: export_model(ckpt, out, overwrite=ow)),
-                        ("import", lambda out, ow: import_preferences(arrays, out, n_actions=5, overwrite=ow))):
+                        ("import", lambda out, ow: import_preferences(arrays, out, n_actions=5, overwrite=ow)),
+                        ("export-data", lambda out, ow: export_dataset(dataset, "parquet", out))):
         link, fifo = tmp_path / f"{name}_link", tmp_path / f"{name}_fifo"
         link.symlink_to(victim_dir)
         os.mkfifo(fifo)

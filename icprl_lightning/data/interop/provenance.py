@@ -60,7 +60,40 @@ def parse(text: str | bytes | None, where: str) -> dict[str, Any]:
     if manifest.get("schema_version") != SCHEMA_VERSION or not isinstance(manifest.get("files"), dict):
         raise ExportError(f"{where}: its manifest has schema version {manifest.get('schema_version')!r} (this "
                           f"code reads {SCHEMA_VERSION}) or no file list")
+    _check_fields(found, where)
     return found
+
+
+def _check_fields(found: Mapping[str, Any], where: str) -> None:
+    """Every entry a reader of the provenance indexes has the type it expects; else one ``ExportError`` naming the
+    field (a forged export would otherwise fail with a raw ``KeyError`` or ``TypeError``)."""
+    def fail(field: str, expected: str, value: Any) -> None:
+        raise ExportError(f"{where}: its {KEY!r} metadata's {field} must be {expected}, got {value!r}"[:400])
+
+    manifest = found["manifest"]
+    for key in ("config", "info"):
+        if not isinstance(manifest.get(key, {}), dict):
+            fail(f"manifest.{key}", "a mapping", manifest[key])
+    for rel, meta in manifest["files"].items():
+        field = f"manifest.files[{rel!r}]"
+        if not isinstance(rel, str) or not rel.endswith(".npy") or rel.count("/") != 1:
+            fail(field, "named <split>/<field>.npy", rel)
+        if not isinstance(meta, dict) or not isinstance(meta.get("sha256"), str):
+            fail(field, "a mapping with a sha256 string", meta)
+        shape = meta.get("shape")
+        if not isinstance(shape, list) or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0
+                                                  for n in shape):
+            fail(f"{field}.shape", "a list of sizes", shape)
+        try:
+            numeric = np.dtype(meta.get("dtype")).kind in "biuf"
+        except (TypeError, ValueError):
+            numeric = False
+        if not numeric or not isinstance(meta.get("dtype"), str):
+            fail(f"{field}.dtype", "a numeric dtype name", meta.get("dtype"))
+    for name, layout in (found.get("tables") or {}).items() if isinstance(found.get("tables"), dict) else ():
+        if not (isinstance(layout, list) and len(layout) == 2 and isinstance(layout[0], str)
+                and isinstance(layout[1], list) and all(isinstance(f, str) for f in layout[1])):
+            fail(f"tables[{name!r}]", "[split, [field, ...]]", layout)
 
 
 def dumps(found: Mapping[str, Any]) -> str:

@@ -141,10 +141,7 @@ def _run_summary(run_dir: Path) -> dict[str, Any]:
     path = run_dir / SUMMARY
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: train a run with `icprl oracle train`")
-    try:
-        summary = json.loads(path.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path} is not valid JSON ({e})") from None
+    summary = read_json(path, "SAC run summary")
     if not isinstance(summary, dict) or summary.get("schema_version") != SCHEMA_VERSION:
         raise ValueError(f"{path} is not a SAC oracle summary of schema {SCHEMA_VERSION}")
     return summary
