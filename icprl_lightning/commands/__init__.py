@@ -170,26 +170,35 @@ def _one_line(error: BaseException) -> str:
 
 # Lightning's lines that describe the machine, not the run: shown with --verbose only
 BANNER = ("GPU available:", "TPU available:", "HPU available:", "Seed set to ")
+QUIETED_LOGGERS = ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.seed")
+
+
+class _Quiet:
+    """A logging filter dropping records that start with one of ``hidden`` (Lightning's adverts, "💡 Tip: ...
+    litlogger", not about this run; and the banner unless --verbose)."""
+
+    def __init__(self, hidden: tuple[str, ...]) -> None:
+        self.hidden = hidden
+
+    def filter(self, record) -> bool:
+        return not record.getMessage().startswith(self.hidden)
 
 
 def _quiet_dependency_noise(verbose: bool = False) -> None:
     """Silence, each by name, messages of dependencies that a user of ``icprl`` cannot act on, and (unless
-    ``verbose``) Lightning's hardware banner."""
+    ``verbose``) Lightning's hardware banner. Called again (tests run several commands in one process), it
+    replaces its filters rather than adding to them."""
     import logging
     import warnings
 
     # Lightning's own _pytree helper builds torch's deprecated LeafSpec: only a Lightning release fixes it
     warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)` is deprecated",
                             category=FutureWarning)
-
-    hidden = ("💡 Tip:",) + (() if verbose else BANNER)
-
-    class NoTips(logging.Filter):  # Lightning's adverts ("💡 Tip: ... litlogger"), not about this run
-        def filter(self, record: logging.LogRecord) -> bool:
-            return not record.getMessage().startswith(hidden)
-
-    for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.seed"):
-        logging.getLogger(name).addFilter(NoTips())
+    for name in QUIETED_LOGGERS:
+        logger = logging.getLogger(name)
+        for old in [f for f in logger.filters if isinstance(f, _Quiet)]:
+            logger.removeFilter(old)
+        logger.addFilter(_Quiet(("💡 Tip:",) + (() if verbose else BANNER)))
 
 
 def main(args: list[str] | None = None) -> None:

@@ -251,7 +251,8 @@ def test_icprl_export_help_and_a_bad_path_are_one_line(tmp_path, capsys):
 
 
 def test_an_unknown_short_name_lists_the_shipped_models():
-    with pytest.raises(FileNotFoundError, match=r"'bandit-icp0' is neither .* \(shipped models: .*bandit-icpo"):
+    with pytest.raises(FileNotFoundError, match=r"'bandit-icp0' is neither .* \(did you mean 'bandit-icpo'\?\); "
+                                                r"shipped models: .*bandit-icpo"):
         load_agent("bandit-icp0")
     with pytest.raises(FileNotFoundError, match="No checkpoint at"):  # a path still reads as a path
         load_agent("missing.ckpt")
