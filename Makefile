@@ -56,14 +56,16 @@ test: $(STAMP)
 smoke: $(STAMP)
 	@run=runs/smoke/$$(date +%Y%m%d-%H%M%S)-$$$$ && \
 	echo "== 1/3 data + training: icprl fit --config configs/smoke.yaml (run directory $$run) ==" && \
-	OMP_NUM_THREADS=1 $(BIN)/icprl fit --config configs/smoke.yaml --trainer.default_root_dir $$run && \
+	OMP_NUM_THREADS=1 $(BIN)/icprl fit --config configs/smoke.yaml --trainer.default_root_dir $$run \
+		--trainer.logger.init_args.save_dir $$run && \
 	ckpt=$$(find $$run -name last.ckpt) && \
 	if [ ! -f "$$ckpt" ]; then echo "make smoke: fit wrote no single last.ckpt under $$run" >&2; exit 1; fi && \
 	echo "== 2/3 deployment: icprl evaluate loads $$ckpt through load_agent on held-out tasks ==" && \
 	OMP_NUM_THREADS=1 $(BIN)/icprl evaluate --run ICPO=configs/smoke.yaml:$$ckpt --contexts own flipped_labels \
 		--seeds 0 --title "make smoke: ICPO on DarkRoom I-PRL" --out $$run/evaluation > $$run/evaluation.log && \
 	echo "== 3/3 held-out returns of the deployed checkpoint ($$run/evaluation.md, .json, .png) ==" && \
-	cat $$run/evaluation.md
+	cat $$run/evaluation.md && \
+	echo "learning curves: icprl report $$run"
 
 # The fast tier, the developer loop, on two pytest-xdist workers of one thread each; `make test` runs every test
 # in one process, as CI does.

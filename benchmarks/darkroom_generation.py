@@ -22,7 +22,7 @@ import numpy as np
 from icprl_lightning.data.settings import StepPreferences
 from icprl_lightning.data.store import write_dataset
 from icprl_lightning.families.darkroom import DarkRoomFamily
-from icprl_lightning.families.darkroom.oracle import calibrate_mixing
+from icprl_lightning.families.darkroom.family import calibrate_mixing
 
 
 def main() -> None:

@@ -54,7 +54,7 @@ def run(config: str, processes: int, threads: int, steps: int, workdir: Path) ->
     out = workdir / f"timer-{processes}x{threads}.json"
     timer = {"class_path": "ddp_throughput.BatchTimer", "init_args": {"out": str(out)}}
     strategy = ["--trainer.strategy", "ddp"] if processes > 1 else []
-    command = [sys.executable, "-m", "icprl_lightning.cli", "fit", "--config", config,
+    command = [sys.executable, "-m", "icprl_lightning", "fit", "--config", config,
                "--trainer.accelerator", "cpu", "--trainer.devices", str(processes), *strategy,
                "--trainer.max_steps", str(steps), "--trainer.max_epochs", "-1", "--trainer.limit_val_batches", "0",
                "--trainer.num_sanity_val_steps", "0", "--trainer.logger", "false",
@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=60)
     parser.add_argument("--runs", nargs="+", default=["1x1", "1x2", "2x1"], help="PxT: P processes, T threads each")
     args = parser.parse_args(argv)
-    from icprl_lightning.cli import main as icprl
+    from icprl_lightning.commands import main as icprl
 
     icprl(["generate", "--config", args.config, "--data.init_args.progress", "false"])
     results = []

@@ -46,7 +46,7 @@ VARIANTS = {
 
 
 def fit(overrides: tuple[str, ...], out: Path, target: float, max_steps: int, every: int, threads: int) -> list[dict]:
-    command = [sys.executable, "-m", "icprl_lightning.cli", "fit", "--config", "configs/icpo_darkroom.yaml",
+    command = [sys.executable, "-m", "icprl_lightning", "fit", "--config", "configs/icpo_darkroom.yaml",
                *overrides, "--seed_everything", "0", "--trainer.max_steps", str(max_steps),
                "--trainer.max_epochs", "1000", "--trainer.val_check_interval", str(every),
                "--trainer.check_val_every_n_epoch", "null", "--trainer.limit_val_batches", "1",

@@ -6,10 +6,10 @@ A checkpoint is untrusted input, so reading one never runs code from it:
   global a pickle names (``os.system``, a class's ``__reduce__``) is refused before it is called. Our
   Lightning checkpoints need nothing more (``epoch``, ``state_dict``, ``loops``, ``optimizer_states``,
   ``hyper_parameters``... are all plain), so no ``add_safe_globals`` is used.
-* The class to build comes from ``METHODS``, an allow-list of this package's LightningModules, looked up
-  by the ``icprl_class_path`` the file names; a name outside it is refused, never imported. The module is
-  built here from the file's ``hyper_parameters`` and ``state_dict`` (not ``load_from_checkpoint``, whose
-  hyperparameters may name an instantiator to import).
+* The class to build comes from the method registry (``registry.py``: this package's methods and those a user
+  registered), looked up by the ``icprl_class_path`` the file names; a name outside it is refused, never
+  imported. The module is built here from the file's ``hyper_parameters`` and ``state_dict`` (not
+  ``load_from_checkpoint``, whose hyperparameters may name an instantiator to import).
 * ``on_save_checkpoint`` stores ``icprl_sha256``: SHA-256 over the class path, the hyperparameters (as
   sorted JSON) and every ``state_dict`` tensor (sorted by name: name, dtype, shape, bytes). Reading
   recomputes it, so a flipped bit in a weight is an error, not a silently different policy.
@@ -36,48 +36,27 @@ as any other read; the stamp only vouches that the file has not changed since).
 
 from __future__ import annotations
 
-import argparse
 import atexit
 import hashlib
-import importlib
 import inspect
 import json
 import os
 import re
 import shutil
-import sys
 import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from icprl_lightning.registry import class_path, method_class, method_names, short_names
+from icprl_lightning.untrusted import check_argument_types, check_torch_archive
+
 CLASS_KEY = "icprl_class_path"
 CHECKSUM_KEY = "icprl_sha256"
 SEAL_KEY = "icprl_seal"
-METHODS = ("icprl_lightning.methods.dpt.DPTModule", "icprl_lightning.methods.dpt.DP2TModule",
-           "icprl_lightning.methods.icpo.ICPOModule", "icprl_lightning.methods.reward_gen.RewardGenModule",
-           "icprl_lightning.methods.dit.DITModule", "icprl_lightning.methods.icrg.ICRGModule",
-           "icprl_lightning.methods.ad.ADModule")
 LIGHTNING_SPECIAL_PATHS = ("best", "last", "hpc")  # ``ckpt_path`` values the Trainer resolves itself
 FLAT_BACKBONE = ("n_layer", "n_embd", "n_head", "dropout")  # the backbone's sizes, as earlier versions saved them
-
-
-def class_path(cls: type) -> str:
-    return f"{cls.__module__}.{cls.__qualname__}"
-
-
-def method_classes() -> dict[str, type]:
-    """The allow-list as classes, imported by the fixed names in ``METHODS`` (never by a name from a file).
-
-    Imported when a checkpoint is built, not at the top: the methods import this module to save, and it
-    sits below them (tests/unit/test_layering.py).
-    """
-    classes = {}
-    for name in METHODS:
-        module, _, attr = name.rpartition(".")
-        classes[name] = getattr(importlib.import_module(module), attr)
-    return classes
 
 
 def checksum(class_name: str, hparams: dict[str, Any], state_dict: dict[str, Any]) -> str:
@@ -197,6 +176,7 @@ def load_raw(path: str | Path, map_location: str | torch.device = "cpu") -> dict
                          f"{path}/checkpoints/last.ckpt)")
     if not path.is_file():
         raise FileNotFoundError(f"No checkpoint at {path}")
+    check_torch_archive(path)  # nothing inflated or read beyond the file's size
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as e:  # torch raises many types for a damaged file
@@ -225,13 +205,14 @@ def verify(ckpt: dict[str, Any], path: str | Path, expected: type | None = None,
     ``require_seal`` (a resume) refuses a file without the seal: its optimizer, loop and RNG states would be
     restored unchecked."""
     name = ckpt[CLASS_KEY]
-    allowed = {class_path(expected)} if expected is not None else set(METHODS)
+    registered = method_names()
+    allowed = {class_path(expected)} if expected is not None else set(registered)
     if not isinstance(name, str) or name not in allowed:
-        if expected is not None and name in METHODS:
+        if expected is not None and name in registered:
             raise ValueError(f"{path} is not a {expected.__name__.removesuffix('Module')} checkpoint (it holds "
                              f"{name.rpartition('.')[2]})")
-        raise ValueError(f"{path} names class {name!r}, which is not one of icprl_lightning's methods "
-                         f"({', '.join(c.rpartition('.')[2] for c in METHODS)}); refusing to import it")
+        raise ValueError(f"{path} names class {name!r}, which is not a registered method "
+                         f"({short_names(registered)}); refusing to import it")
     hparams, state_dict = ckpt.get("hyper_parameters"), ckpt.get("state_dict")
     if not isinstance(hparams, dict) or not isinstance(state_dict, dict):
         raise ValueError(f"{path} is damaged: it has no hyper_parameters or state_dict dict")
@@ -289,11 +270,12 @@ def hyperparameters(ckpt: dict[str, Any]) -> dict[str, Any]:
 
 def build_module(ckpt: dict[str, Any], path: str | Path, map_location: str | torch.device = "cpu"):
     """The LightningModule of a checkpoint from ``read_checkpoint``, in eval mode."""
-    cls = method_classes()[ckpt[CLASS_KEY]]
+    cls = method_class(ckpt[CLASS_KEY])
     # as load_from_checkpoint does: only the class's own arguments (a base class's save_hyperparameters
     # also records its own, e.g. context_kind, and the CLI adds _class_path / _instantiator)
     accepted = inspect.signature(cls.__init__).parameters
     hparams = {k: v for k, v in hyperparameters(ckpt).items() if k in accepted and k != "self"}
+    check_argument_types(cls, hparams, str(path))
     try:
         module = cls(**hparams)
         module.load_state_dict(ckpt["state_dict"], strict=True)
@@ -377,32 +359,3 @@ def stamp_file(path: str | Path) -> str:
         finally:
             tmp.unlink(missing_ok=True)
     return ckpt[CHECKSUM_KEY]
-
-
-def main(args: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="icprl checkpoint", description=__doc__.split("\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("stamp", help="add the checksum to trusted checkpoints saved before it existed").add_argument(
-        "paths", nargs="+")
-    check = sub.add_parser("verify", help="check checkpoints (exit 1 if any fails)")
-    check.add_argument("paths", nargs="+")
-    check.add_argument("--resumable", action="store_true",
-                       help="also require the seal over the training state that a resume restores")
-    parsed = parser.parse_args(args)
-    failed = False
-    for path in parsed.paths:
-        try:
-            if parsed.command == "stamp":
-                print(f"{path}: {CHECKSUM_KEY} {stamp_file(path)}")
-            else:
-                build_module(verify(load_raw(path), path, require_seal=parsed.resumable), path)
-                print(f"{path}: ok")
-        except (ValueError, FileNotFoundError) as e:
-            print(f"error: {e}", file=sys.stderr)
-            failed = True
-    if failed:
-        raise SystemExit(1)
-
-
-if __name__ == "__main__":
-    main()

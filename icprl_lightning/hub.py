@@ -15,9 +15,9 @@ and only then renames it into place (``io.staged_directory``), so an interrupted
 half-written and every exported directory has loaded once.
 
 ``load_model_dir`` refuses, with a ``ValueError`` (a missing file: ``FileNotFoundError``) naming the file: a
-config.json naming a class outside ``checkpoints.METHODS`` (never imported), a model.safetensors whose SHA-256
-differs from config.json's, hyperparameters or tensors that do not match the checkpoint checksum, non-finite
-weights (all checked before the model is built), and tensors whose names or shapes differ from those of the
+config.json naming a class that is not a registered method (``registry.py``; never imported), a model.safetensors
+whose SHA-256 differs from config.json's, hyperparameters or tensors that do not match the checkpoint checksum, non-
+finite weights (all checked before the model is built), and tensors whose names or shapes differ from those of the
 model the hyperparameters build (checked before any weight is loaded into it). The weights are read by
 ``safetensors`` (a JSON header and raw bytes), never unpickled.
 
@@ -27,11 +27,9 @@ Shipped models are such directories under ``icprl_lightning/pretrained/<name>/``
 
 from __future__ import annotations
 
-import argparse
 import inspect
 import json
 import math
-import os
 import re
 import shutil
 from pathlib import Path
@@ -40,7 +38,9 @@ from typing import Any
 import torch
 
 from icprl_lightning import checkpoints
-from icprl_lightning.io import sha256, staged_directory
+from icprl_lightning.io import StorageError, sha256, staged_directory, storage_error
+from icprl_lightning.registry import method_class, method_names, short_names
+from icprl_lightning.untrusted import check_argument_types, read_json, read_yaml
 
 WEIGHTS = "model.safetensors"
 CONFIG = "config.json"
@@ -74,9 +74,12 @@ def resolve(source: str | Path) -> Path:
         return path
     if text in shipped_models():
         return PRETRAINED / text
+    import difflib
+
     known = ", ".join(shipped_models()) or "none"
-    raise FileNotFoundError(f"{text!r} is neither a checkpoint file, a model directory nor a shipped model "
-                            f"(shipped models: {known})")
+    close = difflib.get_close_matches(text, shipped_models(), n=1)
+    raise FileNotFoundError(f"{text!r} is neither a checkpoint file, a model directory nor a shipped model"
+                            f"{f' (did you mean {close[0]!r}?)' if close else ''}; shipped models: {known}")
 
 
 # ---- loading -------------------------------------------------------------------------------------------------
@@ -87,13 +90,10 @@ def read_config(path: str | Path) -> dict[str, Any]:
     if not directory.is_dir():
         raise FileNotFoundError(f"No model directory at {directory}")
     file = directory / CONFIG
-    if not file.is_file():
+    if not file.exists():
         raise FileNotFoundError(f"{directory} has no {CONFIG}, so it is not a model directory (`icprl export` writes "
                                 "one); for a training run pass its checkpoints/last.ckpt")
-    try:
-        config = json.loads(file.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{file} is not readable JSON ({e})") from None
+    config = read_json(file, f"{WHAT} config")
     if not isinstance(config, dict) or config.get("schema_version") != SCHEMA_VERSION:
         found = config.get("schema_version") if isinstance(config, dict) else None
         raise ValueError(f"{file} is not an {WHAT} config of schema version {SCHEMA_VERSION} (schema_version "
@@ -114,10 +114,9 @@ def load_model_dir(path: str | Path, map_location: str | torch.device = "cpu"):
     config = read_config(directory)
     config_file, weights = directory / CONFIG, directory / WEIGHTS
     method = config["method"]
-    if method not in checkpoints.METHODS:  # checked before anything is imported or read
-        names = ", ".join(c.rpartition(".")[2] for c in checkpoints.METHODS)
-        raise ValueError(f"{config_file} names class {method!r}, which is not one of icprl_lightning's methods "
-                         f"({names}); refusing to import it")
+    if method not in method_names():  # checked before anything is imported or read
+        raise ValueError(f"{config_file} names class {method!r}, which is not a registered method "
+                         f"({short_names()}); refusing to import it")
     if not weights.is_file():
         raise FileNotFoundError(f"{directory} has no {WEIGHTS}")
     if sha256(weights) != config["weights_sha256"]:
@@ -148,9 +147,10 @@ def load_model(source: str | Path, map_location: str | torch.device = "cpu"):
 def _build(ckpt: dict[str, Any], config_file: Path):
     """The allow-listed class built from the hyperparameters, as ``checkpoints.build_module`` builds it (only the
     class's own arguments; flat backbone sizes gathered), with its initial weights."""
-    cls = checkpoints.method_classes()[ckpt[checkpoints.CLASS_KEY]]
+    cls = method_class(ckpt[checkpoints.CLASS_KEY])
     accepted = inspect.signature(cls.__init__).parameters
     hparams = {k: v for k, v in checkpoints.hyperparameters(ckpt).items() if k in accepted and k != "self"}
+    check_argument_types(cls, hparams, str(config_file))
     try:
         return cls(**hparams)
     except (TypeError, ValueError, RuntimeError, KeyError, AssertionError) as e:
@@ -188,12 +188,7 @@ def run_config_of(checkpoint: Path) -> Path | None:
 
 def _read_run_config(path: Path) -> dict[str, Any]:
     """What config.json keeps of a run's config.yaml (read with ``yaml.safe_load``: plain values only)."""
-    import yaml
-
-    try:
-        run = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-        raise ValueError(f"{path} is not a readable YAML config ({_short(e)})") from None
+    run = read_yaml(path, "run config")
     if not isinstance(run, dict):
         raise ValueError(f"{path} is not a config of `icprl fit` (not a mapping)")
     data = run.get("data") if isinstance(run.get("data"), dict) else {}
@@ -208,12 +203,7 @@ def _read_run_config(path: Path) -> dict[str, Any]:
 
 def _read_results(path: Path) -> dict[str, Any]:
     """An ``icprl evaluate`` JSON (its ``results`` table is what the card shows)."""
-    try:
-        evaluation = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"No results file at {path}") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path} is not readable JSON ({_short(e)})") from None
+    evaluation = read_json(path, "results file")
     if not isinstance(evaluation, dict) or not isinstance(evaluation.get("results"), dict):
         raise ValueError(f"{path} is not an `icprl evaluate` JSON (no 'results' table)")
     return evaluation
@@ -233,9 +223,7 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
     setting and seed. ``command``: the command that trained it. ``name``: the model's name (default: the
     directory's). An existing ``out_dir`` is replaced only with ``overwrite`` and only if it is a model directory.
     """
-    from safetensors.torch import save_file
-
-    import icprl_lightning
+    from importlib.metadata import version
 
     checkpoint, out_dir = Path(checkpoint), Path(out_dir)
     ckpt = checkpoints.read_checkpoint(checkpoint)
@@ -256,19 +244,30 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
               "seed": run.get("seed"), "training_command": command, "training_config": run.get("training_config"),
               "epoch": ckpt.get("epoch"), "global_step": ckpt.get("global_step"),
               "parameters": sum(p.numel() for p in module.parameters()),
-              "icprl_lightning_version": icprl_lightning.__version__, "exported_from": checkpoint.name,
+              "icprl_lightning_version": version("icprl_lightning"), "exported_from": checkpoint.name,
               "results": RESULTS if evaluation is not None else None}
+    try:
+        _write_model_dir(out_dir, overwrite, tensors, config, module, evaluation, results)
+    except (StorageError, FileExistsError):
+        raise
+    except OSError as e:  # a full disk or a failing write: one line naming the directory; nothing is left behind
+        raise storage_error(e, out_dir, "exporting the model to", "nothing was written") from None
+    return out_dir
+
+
+def _write_model_dir(out_dir: Path, overwrite: bool, tensors: dict[str, torch.Tensor], config: dict[str, Any],
+                     module: torch.nn.Module, evaluation: dict[str, Any] | None, results: Any) -> None:
+    from safetensors.torch import save
+
     with staged_directory(out_dir, marker=CONFIG, schema_version=SCHEMA_VERSION, what=WHAT,
                           overwrite=overwrite) as tmp:
-        save_file(tensors, str(tmp / WEIGHTS), metadata={"format": "pt"})
+        (tmp / WEIGHTS).write_bytes(save(tensors, metadata={"format": "pt"}))  # an OSError, not a SafetensorError
         config["weights_sha256"] = sha256(tmp / WEIGHTS)
         (tmp / CONFIG).write_text(json.dumps(config, indent=2, default=str) + "\n")
-        os.chmod(tmp / WEIGHTS, (tmp / CONFIG).stat().st_mode & 0o777)  # safetensors writes 0600; as the others
         if evaluation is not None:
             shutil.copyfile(results, tmp / RESULTS)
         model_card(config, module, evaluation).save(tmp / CARD)
         load_model_dir(tmp)  # the staged copy loads, checks and all, before it is moved into place
-    return out_dir
 
 
 # ---- the model card ------------------------------------------------------------------------------------------
@@ -393,18 +392,3 @@ def model_card(config: dict[str, Any], module: torch.nn.Module, evaluation: dict
 
 
 # ---- icprl export --------------------------------------------------------------------------------------------
-
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="icprl export", description=__doc__.split("\n")[0])
-    parser.add_argument("checkpoint", help="a .ckpt of any icprl_lightning method")
-    parser.add_argument("--out", required=True, help="the model directory to write")
-    parser.add_argument("--results", help="an `icprl evaluate` JSON of this checkpoint, shown in the model card")
-    parser.add_argument("--run-config", help="the run's config.yaml (default: the one beside checkpoints/)")
-    parser.add_argument("--command", help="the command that trained the checkpoint, recorded in config.json")
-    parser.add_argument("--name", help="the model's name (default: the directory's)")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing model directory")
-    args = parser.parse_args(argv)
-    out = export_model(args.checkpoint, args.out, results=args.results, run_config=args.run_config,
-                       command=args.command, name=args.name, overwrite=args.overwrite)
-    size = sum(f.stat().st_size for f in out.iterdir())
-    print(f"wrote {out} ({size / 1024:.1f} KiB): load it with load_agent({str(out)!r})")

@@ -7,7 +7,9 @@
   a symbolic link — is refused with ``NotReplaceableError``, overwrite or not.
 * ``path_lock``: an exclusive ``fcntl.flock`` on ``<parent>/.<name>.lock``, re-entrant within a process,
   so that two processes writing the same path take turns; ``staged_directory`` holds it while staging.
-* ``write_json_atomic``: a JSON file through a temporary file and ``os.replace`` (result records).
+* ``write_atomic`` (``write_json_atomic``, ``save_figure``): every file a command writes, through a temporary
+  file and ``os.replace``; a symbolic link at the path is replaced, never followed, and a FIFO, device or
+  directory there is refused (``check_writable``).
 * ``sha256`` (file checksums of the dataset manifest) and ``jsonable`` (numpy values to JSON types).
 * ``StorageError`` / ``storage_error``: an ``OSError`` as one line naming the path; a full disk (``ENOSPC``,
   ``EDQUOT``) says "no space left on <path>".
@@ -22,12 +24,13 @@ import json
 import logging
 import os
 import shutil
+import stat
 import threading
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -195,8 +198,11 @@ def _acquire(lock: Path, path: Path) -> int | None:
             if current is None or (current.st_dev, current.st_ino) != (mine.st_dev, mine.st_ino):
                 os.close(fd)  # the holder removed that file on release: lock the new one
                 continue
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            try:  # the holder's pid, for the waiting message only: a full disk must not leave the lock behind
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            except OSError:
+                pass
             return fd
         except BaseException:
             os.close(fd)
@@ -289,19 +295,73 @@ def staged_directory(path: str | Path, *, marker: str, schema_version: int, what
             raise
 
 
-def write_json_atomic(path: str | Path, payload: dict[str, Any]) -> Path:
-    """Write ``payload`` as JSON through a temp file in the same directory and an atomic rename."""
+def check_writable(path: str | Path) -> None:
+    """Refuse to write a file at ``path`` if something other than a regular file or a symbolic link is there (a
+    FIFO would block the writer, a device would take the bytes, a directory is not a file): ``NotReplaceableError``
+    naming it. A symbolic link is replaced by the file (``write_atomic``), never followed."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        mode = path.lstat().st_mode
+    except FileNotFoundError:
+        return
+    if not (stat.S_ISREG(mode) or stat.S_ISLNK(mode)):
+        kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
+                else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a special file")
+        raise NotReplaceableError(f"{path} is {kind}, not a file; refusing to write to it; remove it or choose "
+                                  "another path")
+
+
+def write_atomic(path: str | Path, content: bytes | str | Callable[[BinaryIO], Any]) -> Path:
+    """Write ``content`` (bytes, text, or a function writing to a binary file) to ``path`` through a new
+    temporary file in the same directory, flushed, then renamed over ``path``: a reader sees the old file or the
+    new one, a symbolic link at ``path`` is replaced rather than followed, and a FIFO, device or directory there
+    is refused (``check_writable``). An ``OSError`` is one line naming ``path`` (``storage_error``); on any
+    failure the temporary file is removed and ``path`` is untouched."""
+    path = Path(path)
+    check_writable(path)
     tmp = path.parent / f".{path.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"
     try:
-        with open(tmp, "w") as f:
-            json.dump(jsonable(payload), f, indent=2)
-            f.write("\n")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # O_EXCL: never write through a file or link someone else put at the temporary name
+        with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), "wb") as f:
+            if callable(content):
+                content(f)
+            else:
+                f.write(content.encode() if isinstance(content, str) else content)
             f.flush()
             os.fsync(f.fileno())
+        check_writable(path)
         os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        if isinstance(e, NotReplaceableError | StorageError):
+            raise
+        raise storage_error(e, path, "writing", "nothing was written") from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def write_json_atomic(path: str | Path, payload: dict[str, Any]) -> Path:
+    """Write ``payload`` as JSON through ``write_atomic``."""
+    return write_atomic(path, json.dumps(jsonable(payload), indent=2) + "\n")
+
+
+def save_figure(fig: Any, path: str | Path, **kwargs: Any) -> Path:
+    """A matplotlib figure saved to ``path`` (its format from the suffix) through ``write_atomic``."""
+    path = Path(path)
+    return write_atomic(path, lambda f: fig.savefig(f, format=path.suffix.lstrip(".") or "png", **kwargs))
+
+
+def payloads_in(folder: Path, kind) -> list[tuple[str, dict[str, Any]]]:
+    """The JSON files of ``folder`` whose content ``kind`` accepts, by stem (unreadable ones skipped)."""
+    out = []
+    for path in sorted(folder.glob("*.json")):
+        try:
+            payload = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            continue
+        if kind(payload):
+            out.append((path.stem, payload))
+    return out

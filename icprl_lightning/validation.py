@@ -66,6 +66,13 @@ def check_int(owner: str, key: str, value: Any, minimum: int | None = 1, maximum
     return int(value)
 
 
+def check_bool(owner: str, key: str, value: Any) -> bool:
+    """``value`` is True or False (not a string such as "false", not 0 or 1)."""
+    if not isinstance(value, bool | np.bool_):
+        _fail(owner, key, "true or false", value)
+    return bool(value)
+
+
 def check_positive(owner: str, key: str, value: Any) -> float:
     """``value`` is a finite number > 0."""
     _number(owner, key, value, integer=False)

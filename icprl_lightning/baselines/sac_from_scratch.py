@@ -23,24 +23,19 @@ and pass ``--episodes 1000`` for the paper's budget.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import stable_baselines3
-import torch
 from stable_baselines3 import SAC
 
 from icprl_lightning.baselines.from_scratch import from_scratch_record, train_from_scratch
-from icprl_lightning.families.metaworld_reach import ReachTaskFamily
 from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON
 from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
 from icprl_lightning.families.metaworld_reach.oracle import expert_actions, normalized_return
-from icprl_lightning.io import write_json_atomic
 from icprl_lightning.sb3 import Act
 
 PAPER_EPISODES = 1000
@@ -89,34 +84,3 @@ def run(goals: np.ndarray, seeds: Sequence[int], episodes: int, horizon: int = H
             "episodes_per_goal": episodes, "paper_episodes_per_goal": PAPER_EPISODES, "seeds": list(seeds),
             "eval_every_episodes": eval_every, "eval_episodes": eval_episodes, "test_episodes": test_episodes,
             **from_scratch_record(per_goal, keys, start, cpu_start)}
-
-
-def main(args: Sequence[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(prog="icprl baseline sac", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=DEFAULT_EPISODES,
-                        help=f"training episodes per goal (paper: {PAPER_EPISODES})")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
-    parser.add_argument("--family-seed", type=int, default=0, help="ReachTaskFamily seed (fixes the 5 test goals)")
-    parser.add_argument("--horizon", type=int, default=HORIZON)
-    parser.add_argument("--eval-every", type=int, default=2, help="episodes between checkpoint evaluations")
-    parser.add_argument("--eval-episodes", type=int, default=2)
-    parser.add_argument("--test-episodes", type=int, default=10)
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for these MLPs)")
-    parser.add_argument("--out", type=Path,
-                        default=Path("docs/results/sac_from_scratch/sac_from_scratch_metaworld.json"))
-    ns = parser.parse_args(args)
-    torch.set_num_threads(ns.threads)
-    goals = ReachTaskFamily(seed=ns.family_seed).test_goals
-    result = run(goals, ns.seeds, ns.episodes, ns.horizon, ns.eval_every, ns.eval_episodes, ns.test_episodes,
-                 progress=True)
-    result["family_seed"] = ns.family_seed
-    result["command"] = "icprl baseline sac " + " ".join(sys.argv[1:] if args is None else args)
-    out = write_json_atomic(ns.out, result)
-    print(f"return {result['return']['mean']:.2f} ± {result['return']['sem']:.2f}, success "
-          f"{result['success']['mean']:.2f} ± {result['success']['sem']:.2f} -> {out}")
-    return out
-
-
-if __name__ == "__main__":
-    main()

@@ -11,12 +11,8 @@ whose checksum differs from the reference's and exits with status 1.
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
-import tempfile
-import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 
 from icprl_lightning.data.config import datamodule_from_config
@@ -33,26 +29,3 @@ def dataset_checksums(config: str, root: str | Path) -> dict[str, str]:
 def changed_files(reference: Mapping[str, str], current: Mapping[str, str]) -> list[str]:
     """The files whose checksum differs between two ``dataset_checksums`` results (or that only one has)."""
     return sorted(k for k in set(reference) | set(current) if reference.get(k) != current.get(k))
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="icprl analyze checksums", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("configs", nargs="+", help="config files (a base and its overlays joined by '+')")
-    parser.add_argument("--compare", type=Path, help="a JSON of an earlier run to compare against")
-    args = parser.parse_args(argv)
-    reference = json.loads(args.compare.read_text()) if args.compare else None
-    out, failed = {}, []
-    with tempfile.TemporaryDirectory() as root:
-        for config in args.configs:
-            start = time.time()
-            out[config] = dataset_checksums(config, root)
-            print(f"{config}: {len(out[config])} files in {time.time() - start:.0f} s", file=sys.stderr)
-            if reference is not None and config in reference and reference[config] != out[config]:
-                failed.append(config)
-                print(f"  CHANGED: {', '.join(changed_files(reference[config], out[config]))}", file=sys.stderr)
-    print(json.dumps(out, indent=1, sort_keys=True))
-    if failed:
-        print(f"{len(failed)} of {len(args.configs)} configs changed their dataset bytes", file=sys.stderr)
-        raise SystemExit(1)
-    return 0

@@ -33,8 +33,6 @@ method on it.
 
 from __future__ import annotations
 
-import argparse
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,7 +43,7 @@ import numpy as np
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.data.schema import MAX_MAGNITUDE, magnitude_problem
 from icprl_lightning.data.source_files import MAX_SOURCE_BYTES, read_source
-from icprl_lightning.data.store import DatasetError, check_replaceable_dataset, write_dataset
+from icprl_lightning.data.store import check_replaceable_dataset, write_dataset
 
 FORMAT = "icprl_recorded"
 FORMAT_VERSION = 1
@@ -104,7 +102,8 @@ def _to_float32(name: str, x: np.ndarray) -> np.ndarray:
 
 
 def _index_dtype(n_actions: int) -> type:
-    return np.int8 if n_actions <= 127 else np.int16 if n_actions <= 32767 else np.int32
+    """The smallest signed integer type holding every index in [0, n_actions)."""
+    return next(t for t in (np.int8, np.int16, np.int32, np.int64) if n_actions - 1 <= np.iinfo(t).max)
 
 
 def _check_field(name: str, x: np.ndarray, spec: FieldSpec, n: int, t: int, s: int, actions: ActionSpec,
@@ -148,7 +147,7 @@ def _check_field(name: str, x: np.ndarray, spec: FieldSpec, n: int, t: int, s: i
         if x.min() < 0 or x.max() >= actions.size:
             raise ValueError(f"field {name!r} holds action indices in [{x.min()}, {x.max()}], outside "
                              f"[0, {actions.size}) of --n-actions {actions.size}")
-        return x.astype(_index_dtype(actions.size))
+        return x.astype(_index_dtype(actions.size))  # [0, n) fits: never a silent wrap
     if x.shape[2] != actions.size:
         raise ValueError(f"field {name!r} has action size {x.shape[2]}, --action-dim is {actions.size}; "
                          f"expected shape {expected}")
@@ -318,86 +317,5 @@ FORMATS = ("npz", "hf", "parquet", "minari", "trl", "bpref")
 EXPORT_FORMATS = ("hf", "parquet", "minari")  # `icprl export-data` exports: rebuilt exactly, with kind and actions
 
 
-def _import_export(fmt: str, source: str, out: str, overwrite: bool) -> str:
-    """Rebuild an `icprl export-data` export (``data/interop``); the one-line summary."""
-    from icprl_lightning.data.interop import import_export
-
-    path = import_export(fmt, source, out, overwrite=overwrite)
-    return f"rebuilt the exported dataset {source} ({fmt}) into {path}; every file matches its exported SHA-256"
 
 
-def _foreign_arrays(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, Any], str]:
-    """(arrays, source row of each, origin, kind) of TRL rows or segment-pair label arrays (``data/interop``)."""
-    from icprl_lightning.data.interop import preference_rows
-
-    origin: dict[str, Any] = {"format": args.format, "source": str(args.source)}
-    if args.format == "trl":
-        if args.kind is None:
-            raise ValueError(f"--format trl needs --kind ({' or '.join(preference_rows.ROW_COLUMNS)})")
-        arrays, rows = preference_rows.trl_arrays(preference_rows.read_table(args.source), args.kind, args.seed)
-        return arrays, rows, origin, args.kind
-    if args.kind not in (None, "trajectory_preference"):
-        raise ValueError(f"--format bpref imports segment pairs as trajectory_preference, not --kind {args.kind}")
-    arrays, rows, dropped = preference_rows.label_arrays(read_source(args.source, args.max_source_bytes),
-                                                         args.label_convention, args.ties)
-    origin.update(label_convention=args.label_convention, ties=args.ties, ties_dropped=dropped)
-    return arrays, rows, origin, "trajectory_preference"
-
-
-def main(argv: list[str] | None = None) -> ImportSummary | str:
-    """``icprl import``: see the module docstring; ``--format`` other than npz: ``data/interop``."""
-    parser = argparse.ArgumentParser(
-        prog="icprl import", description="Check recorded preference arrays and write them as an icprl dataset "
-        "(format: docs/recorded_data.md), or bring back an `icprl export-data` export, or import TRL chosen/rejected "
-        "rows or segment-pair label arrays (docs/data_formats.md).")
-    parser.add_argument("source", help="an .npz file or a directory of <field>.npy files; with --format: the export "
-                        "directory, the TRL table (Parquet file or save_to_disk directory) or the label arrays")
-    parser.add_argument("--out", required=True, help="the dataset directory to write")
-    parser.add_argument("--format", choices=FORMATS, default="npz",
-                        help="npz: recorded arrays (default); hf|parquet|minari: an export of `icprl export-data`, "
-                        "rebuilt byte for byte; trl: chosen/rejected rows; bpref: segment pairs with labels")
-    parser.add_argument("--kind", choices=sorted(KINDS), help="the context kind (npz, trl; bpref: trajectory pairs)")
-    actions = parser.add_mutually_exclusive_group()
-    actions.add_argument("--n-actions", type=int, help="discrete actions: indices in [0, n_actions)")
-    actions.add_argument("--action-dim", type=int, help="continuous actions: vectors of this size")
-    parser.add_argument("--val-fraction", type=float, default=0.1, help="share of the tasks held out for val")
-    parser.add_argument("--seed", type=int, default=0, help="seeds the train/val task split (and a TRL pair's order)")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing icprl dataset at --out")
-    parser.add_argument("--max-source-bytes", type=int, default=MAX_SOURCE_BYTES,
-                        help="refuse sources whose arrays declare more bytes than this (default: 8 GiB)")
-    parser.add_argument("--ties", choices=("refuse", "drop"), default="refuse",
-                        help="bpref: a tie (0.5) is refused (default) or its row dropped; no method trains on 0.5")
-    parser.add_argument("--label-convention", choices=("imitation", "bpref"), default="imitation",
-                        help="bpref: imitation (label = P(segment 1 preferred)) or bpref (1 = segment 2 preferred)")
-    args = parser.parse_args(argv)
-    if args.format in EXPORT_FORMATS:
-        given = [flag for flag, value in (("--kind", args.kind), ("--n-actions", args.n_actions),
-                                          ("--action-dim", args.action_dim)) if value is not None]
-        if given:
-            parser.error(f"{', '.join(given)} not used with --format {args.format}: the export carries its kind and "
-                         "actions")
-        try:
-            summary = _import_export(args.format, args.source, args.out, args.overwrite)
-        except (ValueError, OSError, DatasetError) as e:
-            parser.exit(2, f"icprl import: error: {e}\n")
-        print(summary)
-        return summary
-    if args.n_actions is None and args.action_dim is None:
-        parser.error("one of the arguments --n-actions --action-dim is required")
-    if args.format == "npz" and args.kind is None:
-        parser.error("the following arguments are required: --kind")
-    try:
-        source, rows, origin, kind = args.source, None, None, args.kind
-        if args.format in ("trl", "bpref"):
-            source, rows, origin, kind = _foreign_arrays(args)
-        summary = import_preferences(source, args.out, kind, n_actions=args.n_actions, action_dim=args.action_dim,
-                                     val_fraction=args.val_fraction, seed=args.seed, overwrite=args.overwrite,
-                                     max_source_bytes=args.max_source_bytes, source_rows=rows, origin=origin)
-    except (ValueError, OSError, DatasetError) as e:  # each one line naming the field, file or path
-        parser.exit(2, f"icprl import: error: {e}\n")
-    print(summary)
-    return summary
-
-
-if __name__ == "__main__":
-    main(sys.argv[1:])

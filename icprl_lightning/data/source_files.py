@@ -29,6 +29,7 @@ from typing import IO, Any
 import numpy as np
 
 from icprl_lightning.io import storage_error
+from icprl_lightning.untrusted import UntrustedFileError, regular_file_size
 
 MAX_SOURCE_BYTES = 8 << 30  # declared bytes of all source arrays together (they are loaded into memory)
 Opener = Callable[[], IO[bytes]]
@@ -67,8 +68,11 @@ def read_source(source: str | Path, max_bytes: int = MAX_SOURCE_BYTES) -> dict[s
 
 
 def _size(path: Path) -> int:
+    """The size of a regular file (a FIFO named like a field would block the reader forever)."""
     try:
-        return path.stat().st_size
+        return regular_file_size(path, ".npy array", 1 << 62)
+    except UntrustedFileError as e:
+        raise ValueError(str(e)) from None
     except OSError as e:
         raise storage_error(e, path, "reading") from None
 

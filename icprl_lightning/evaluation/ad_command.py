@@ -26,7 +26,6 @@ episodes 1, 5, 10, ..., N) and the figure ``<out>.png``; ``evaluate_ad`` is the 
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -36,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from icprl_lightning.io import write_json_atomic
+from icprl_lightning.io import save_figure, write_atomic, write_json_atomic
 
 KIND = "ad_learning_curve"  # the JSON's ``kind``: how ``reproduce.render`` tells it from an ``icprl evaluate`` one
 SOURCE = "Q-learning (source)"
@@ -241,7 +240,7 @@ def evaluate_ad(runs: Mapping[str, tuple[str, Sequence[str]]], episodes: int = 2
                "results": results, "learning_curves": curves}
     if out is not None:
         write_json_atomic(f"{out}.json", payload)
-        Path(f"{out}.md").write_text(ad_markdown(json.loads(Path(f"{out}.json").read_text())))
+        write_atomic(f"{out}.md", ad_markdown(json.loads(Path(f"{out}.json").read_text())))
         ad_figure(payload, f"{out}.png")
     return payload
 
@@ -311,48 +310,8 @@ def ad_figure(payload: dict[str, Any], path: str | Path) -> None:
     ax.set_title(payload["title"], fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
 # ---- the command -------------------------------------------------------------------------------------------------
-
-def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="icprl evaluate ad", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", action="append", required=True,
-                        help="NAME=CONFIG:CHECKPOINT[,CHECKPOINT...]: an AD run (several checkpoints: training seeds)")
-    parser.add_argument("--episodes", type=int, default=20, help="consecutive episodes per held-out goal")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="episode seeds")
-    parser.add_argument("--out", required=True, help="output path without extension: <out>.json, .md, .png")
-    parser.add_argument("--title", default="AD on held-out goals", help="figure title")
-    parser.add_argument("--against", action="append", default=[],
-                        help="NAME=JSON of `icprl evaluate online` on the same goals: its per-episode curve beside AD")
-    args = parser.parse_args(argv)
-    args.parser = parser
-    return args
-
-
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    args = parse_args(argv)
-    try:
-        runs: dict[str, tuple[str, list[str]]] = {}
-        for spec in args.run:
-            name, config, checkpoints = parse_run(spec)
-            if name in runs:
-                raise ADInputError(f"--run name {name!r} is given twice: names must be unique")
-            runs[name] = (config, checkpoints)
-        against = {}
-        for spec in args.against:
-            name, _, path = spec.partition("=")
-            if not (name and path) or name in against:
-                raise ADInputError(f"--against {spec!r} is not NAME=JSON with a name of its own")
-            against[name] = path
-        if not Path(args.out).parent.is_dir():
-            raise ADInputError(f"--out {args.out}: its folder {Path(args.out).parent} does not exist")
-        payload = evaluate_ad(runs, args.episodes, args.seeds, args.out, args.title, against)
-    except ADInputError as e:
-        args.parser.exit(2, f"{args.parser.prog}: error: {e}\n")
-    print(ad_markdown(payload), end="", flush=True)
-    print(f"wrote {args.out}.json, {args.out}.md, {args.out}.png", flush=True)
-    return payload

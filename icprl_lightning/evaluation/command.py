@@ -47,25 +47,18 @@ data's context kind, state size, action space and context length, so a bandit ch
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import numpy as np
 
 from icprl_lightning.deploy import load_agent
-from icprl_lightning.evaluation.diagnostics import DIAGNOSTICS, applicable, diagnose_suite
+from icprl_lightning.evaluation.diagnostics import applicable, diagnose_suite
 from icprl_lightning.evaluation.duels import BASELINES, curve_mean_sem, seed_mean_curves, summarize_regrets
-from icprl_lightning.evaluation.pairing import is_bandit_data, run_datamodule
 from icprl_lightning.evaluation.report import (
-    aligned_tables,
     baseline_row,
-    markdown_tables,
-    read_baseline,
     reference_rows,
-    write_outputs,
 )
 from icprl_lightning.evaluation.rollout import episode_stats, rollout_seeds, suite_env
 from icprl_lightning.families.dueling_bandit.env import LinearDuelingBanditFamily
@@ -74,68 +67,8 @@ from icprl_lightning.metrics import mean_sem
 RESERVED = {"behavior", "optimal", "expert", *BASELINES}
 
 
-def fail(parser: argparse.ArgumentParser, message: str) -> NoReturn:
-    """Exit 2 with one line on stderr: a file or a pairing is wrong, not the command's syntax (no usage text)."""
-    parser.exit(2, f"{parser.prog}: error: {message}\n")
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="icprl evaluate", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--run", action="append", required=True,
-                        help="NAME=CONFIG:CHECKPOINT[,CHECKPOINT...] (several: training seeds of one method)")
-    parser.add_argument("--baseline", action="append", default=[], help="NAME=JSON of a from-scratch baseline")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    actions = parser.add_mutually_exclusive_group()
-    actions.add_argument("--sample", action="store_true", help="sample a ~ T(a|s,D) for every method")
-    actions.add_argument("--greedy", action="store_true", help="argmax / Gaussian mean for every method")
-    parser.add_argument("--reference", help="NAME of the --run whose dataset gives the reference rows "
-                        "(behavior and optimal/expert; bandits: DTS and behaviour; default: the first)")
-    parser.add_argument("--contexts", nargs="+", choices=DIAGNOSTICS, default=["own"],
-                        help="context diagnostics beside the own-context rows: flipped_labels, random_labels, "
-                        "other_task, shuffled_order (evaluation.diagnostics)")
-    parser.add_argument("--no-baselines", action="store_true", help="dueling bandits: only the runs' rows, "
-                        "without DTS, MaxInP, BT Thompson sampling, the Bayes reference and behaviour (minutes on "
-                        "200 problems)")
-    parser.add_argument("--data", action="append", default=[], metavar="FILE",
-                        help="a YAML data section stacked on every run's config (e.g. configs/eval/"
-                        "reach_fresh_goals.yaml: other held-out tasks); the checkpoints are unchanged")
-    parser.add_argument("--title", default="held-out tasks", help="figure title")
-    parser.add_argument("--out", help="output path without extension (default: <run dir>/eval/<date-time> of the "
-                        "first checkpoint)")
-    args = parser.parse_args(argv)
-    args.runs = {}
-    for spec in args.run:
-        name, _, rest = spec.partition("=")
-        config, _, checkpoints = rest.partition(":")
-        checkpoint = [c for c in checkpoints.split(",") if c]
-        if not (name and config and checkpoint):
-            parser.error(f"--run {spec!r} is not NAME=CONFIG:CHECKPOINT[,CHECKPOINT...]")
-        if name in RESERVED or name in args.runs:
-            parser.error(f"--run name {name!r} is taken (reference rows: {', '.join(sorted(RESERVED))}; "
-                         "names must be unique)")
-        args.runs[name] = (config, checkpoint)
-    for path in args.data:
-        if not Path(path).is_file():
-            fail(parser, f"--data {path}: no such file")
-    args.diagnostics = [d for d in dict.fromkeys(args.contexts) if d != "own"]
-    args.reference = args.reference or next(iter(args.runs))
-    if args.reference not in args.runs:
-        parser.error(f"--reference {args.reference!r} names no --run (runs: {', '.join(args.runs)})")
-    args.baselines = {}
-    for spec in args.baseline:  # read now: a bad file fails here, not after the whole evaluation
-        name, _, path = spec.partition("=")
-        if not (name and path):
-            parser.error(f"--baseline {spec!r} is not NAME=JSON")
-        if name in RESERVED or name in args.runs or name in args.baselines:
-            parser.error(f"--baseline name {name!r} is taken (a --run, another --baseline or a reference row)")
-        try:
-            args.baselines[name] = read_baseline(path)
-        except ValueError as e:
-            fail(parser, str(e))
-    args.out = args.out or str(default_out(next(iter(args.runs.values()))[1][0]))
-    args.parser = parser
-    return args
 
 
 def default_out(checkpoint: str) -> Path:
@@ -241,7 +174,7 @@ def evaluate_bandit(dm, checkpoints: list[str], name: str, seeds: list[int], gre
     return summaries, curves
 
 
-def bandit_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | None) -> dict[str, Any]:
+def bandit_payload(args: Any, datamodules: dict, greedy: bool | None) -> dict[str, Any]:
     """Weak- and strong-regret summaries and curves of every run, with the ``BASELINES`` rows (DTS, MaxInP,
     BT Thompson sampling, the Bayes reference, behaviour) from the reference's dataset."""
     results, curves, diagnostics = {}, {}, {}
@@ -264,7 +197,7 @@ def bandit_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | N
             "strong_curves": {n: curves["strong"][n] for n in order}, "diagnostics": diagnostics}
 
 
-def rollout_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | None) -> dict[str, Any]:
+def rollout_payload(args: Any, datamodules: dict, greedy: bool | None) -> dict[str, Any]:
     """Per-quality rows of every run, the reference run's behavior and optimal/expert rows, the baselines."""
     results, diagnostics = {}, {}
     for name, (_, checkpoints) in args.runs.items():
@@ -282,44 +215,3 @@ def rollout_payload(args: argparse.Namespace, datamodules: dict, greedy: bool | 
         results[name] = baseline_row(result, qualities)
     return {"contexts": ["own", *args.diagnostics], "runs": args.run, "baselines": args.baseline,
             "reference_rows_from": args.reference, "results": results, "diagnostics": diagnostics}
-
-
-def main(argv: list[str] | None = None) -> dict:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:1] == ["online"]:  # the online mode: its own options (evaluation/online_command.py)
-        from icprl_lightning.evaluation.online_command import main as online_main
-
-        return online_main(argv[1:])
-    if argv[:1] == ["ad"]:  # Algorithm Distillation across episodes: its own options (evaluation/ad_command.py)
-        from icprl_lightning.evaluation.ad_command import main as ad_main
-
-        return ad_main(argv[1:])
-    args = parse_args(argv)
-    greedy = False if args.sample else True if args.greedy else None  # None: each method's own default
-    datamodules = {}
-    for name, (config, checkpoints) in args.runs.items():  # every check before any dataset is generated
-        try:
-            datamodules[name] = run_datamodule(name, config, checkpoints, args.data)
-        except ValueError as e:
-            fail(args.parser, str(e))
-    kinds = {name: is_bandit_data(dm) for name, dm in datamodules.items()}
-    if len(set(kinds.values())) > 1:
-        fail(args.parser, "runs mix dueling bandits with MDP families: "
-                          + ", ".join(f"{n} ({'bandit' if b else 'MDP'})" for n, b in kinds.items()))
-    bandit = kinds[args.reference]
-    if bandit and args.baseline:
-        fail(args.parser, "--baseline applies to MDP families, not dueling bandits")
-    for name, dm in datamodules.items():
-        dm.prepare_data()
-        if not bandit and not dm.evaluation_suites():
-            fail(args.parser, f"--run {name}: the data of {args.runs[name][0]} has no held-out rollouts to "
-                              "evaluate on (recorded data has no simulator); use a task family's config")
-    actions_used = "sampled" if args.sample else "greedy" if args.greedy else "each method's default"
-    payload: dict[str, Any] = {"title": args.title, "seeds": args.seeds, "actions": actions_used}
-    if args.data:
-        payload["data_overlays"] = args.data
-    payload.update((bandit_payload if bandit else rollout_payload)(args, datamodules, greedy))
-    write_outputs(payload, args.out)
-    print(aligned_tables(markdown_tables(payload)), flush=True)
-    print(f"wrote {args.out}.json, {args.out}.md, {args.out}.png", flush=True)
-    return payload

@@ -25,9 +25,6 @@ This reads the privileged oracle and the goals, as a diagnostic may; no learner 
 
 from __future__ import annotations
 
-import argparse
-import json
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -150,17 +147,4 @@ def dit_advantages(dit: str, icrg: str | None = None, oracle: bool = False) -> d
         out["corr_true_reward_vs_reward_hat"] = correlation(reward, icrg_a["rewards"])
         if optimal is not None:
             out.update(oracle_correlations("icrg", icrg_a, optimal))
-    return out
-
-
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze dit-advantages", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--dit", required=True, help="CONFIG:CHECKPOINT of DIT on true rewards")
-    parser.add_argument("--icrg", help="CONFIG:CHECKPOINT of ICRG (optional: without it, DIT's correlations only)")
-    parser.add_argument("--oracle", action="store_true",
-                        help="also correlate with the SAC oracle's A*(s, a) (Meta-World Reach, SAC recipe)")
-    args = parser.parse_args(argv)
-    out = dit_advantages(args.dit, args.icrg, args.oracle)
-    print(json.dumps(out, indent=2))
     return out

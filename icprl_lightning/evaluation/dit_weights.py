@@ -30,7 +30,6 @@ seeds; each measure is reported as mean ± sem over them.
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -44,7 +43,6 @@ from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.darkroom.env import step_reward, transition
-from icprl_lightning.io import write_json_atomic
 from icprl_lightning.methods.dit import DITModule, swap_roles
 from icprl_lightning.methods.losses import return_to_go_advantages, standardized_advantages, td_advantages
 from icprl_lightning.metrics import mean_sem_or_none
@@ -145,24 +143,3 @@ def dit_weights(checkpoints: Sequence[str | Path]) -> dict[str, Any]:
             values = [r[q][m] for r in per_ckpt.values() if r.get(q, {}).get(m) is not None]
             summary.setdefault(q, {})[m] = mean_sem_or_none(values) if values else (None, None)
     return {"checkpoints": per_ckpt, "summary": summary}
-
-
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze dit-weights", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--ckpt", type=Path, action="append", required=True,
-                        help="a DIT or ICRG checkpoint (repeat: seeds)")
-    parser.add_argument("--json", type=Path, help="also write the per-checkpoint measures and their summary")
-    args = parser.parse_args(argv)
-    out = dit_weights(args.ckpt)
-    print(f"| measure ({len(out['checkpoints'])} checkpoints, mean ± sem) | " + " | ".join(QUALITIES) + " |")
-    print("|---|" + "---|" * len(QUALITIES))
-    for m in MEASURES:
-        cells = []
-        for q in QUALITIES:
-            mean, sem = out["summary"][q][m]
-            cells.append("–" if mean is None else f"{mean:.3f}" + (f" ± {sem:.3f}" if sem is not None else ""))
-        print(f"| {m} | " + " | ".join(cells) + " |")
-    if args.json is not None:
-        write_json_atomic(args.json, out)
-    return out

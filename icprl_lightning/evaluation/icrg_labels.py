@@ -21,7 +21,6 @@ closer to the deployment ones.
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -33,7 +32,6 @@ from icprl_lightning.checkpoints import load_module
 from icprl_lightning.data import PreferenceDataModule
 from icprl_lightning.deploy import load_agent
 from icprl_lightning.evaluation.trajectory_data import tprl_datamodule
-from icprl_lightning.io import write_json_atomic
 from icprl_lightning.methods.icrg import ICRGModule
 
 
@@ -89,26 +87,3 @@ def icrg_labels(config: str | Path, checkpoints: Sequence[str | Path], rows: int
                               "training": training_labels(model.eval(), pairs, rewards, rows, seed),
                               "deployment": deployment_labels(path, pairs, rewards)}
     return {"config": str(config), "rows": rows, "seed": seed, "correlation": results}
-
-
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze icrg-labels", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--ckpt", type=Path, nargs="+", action="extend", required=True, help="ICRG checkpoint(s)")
-    parser.add_argument("--config", type=Path, required=True, help="the ICRG runs' data config (their config.yaml)")
-    parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
-    parser.add_argument("--rows", type=int, default=2000, help="training rows whose labels are scored")
-    parser.add_argument("--seed", type=int, default=0, help="draws the training rows and their other pairs")
-    parser.add_argument("--json", type=Path, help="also write the correlations here")
-    args = parser.parse_args(argv)
-    if args.rows < 1:
-        parser.error(f"--rows must be >= 1, got {args.rows}")
-    out = icrg_labels(args.config, args.ckpt, args.rows, args.seed, args.data_root)
-    if args.json is not None:
-        write_json_atomic(args.json, out)
-    print("| checkpoint | labels | training goals | held-out low | medium | high |\n|---|---|---|---|---|---|")
-    for path, r in out["correlation"].items():
-        d = r["deployment"]
-        print(f"| {path} | {'cross-fitted' if r['cross_fitted'] else 'in-sample'} | {r['training']:.3f} | "
-              f"{d['low']:.3f} | {d['medium']:.3f} | {d['high']:.3f} |")
-    return out

@@ -59,6 +59,7 @@ from icprl_lightning.evaluation.duels import baseline_seeds, linear_learner, see
 from icprl_lightning.families.dueling_bandit import LinearDuelingBanditFamily
 from icprl_lightning.families.dueling_bandit.dts import run_dts
 from icprl_lightning.families.dueling_bandit.linear_baselines import run_online
+from icprl_lightning.io import save_figure
 from icprl_lightning.methods.ad import DuelHistoryAgent
 from icprl_lightning.metrics import mean_sem, mean_sem_or_none, strong_regret, weak_regret
 from icprl_lightning.online import PAIR_RULES, OnlineAgent
@@ -349,4 +350,4 @@ def online_bandit_figure(out: dict[str, Any], path: str | Path) -> None:
     ax.set_title(f"online dueling bandits, {out['problems']} held-out problems, labels: {out['labels']} "
                  f"({len(out['checkpoints'])} training seeds)", fontsize=8)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)

@@ -26,18 +26,16 @@ Prints the result as JSON; ``--out PATH`` also writes ``PATH.json`` and the figu
 
 from __future__ import annotations
 
-import argparse
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.evaluation import online_bandit, online_mdp
-from icprl_lightning.evaluation.pairing import is_bandit_data
+from icprl_lightning.evaluation.pairing import fit_errors, is_bandit_data
 from icprl_lightning.families.base import TaskFamily
+from icprl_lightning.hub import load_model
 from icprl_lightning.io import write_json_atomic
-from icprl_lightning.online import PAIR_RULES
 
 MDP_ONLY = {"episodes": "--episodes", "quality": "--quality", "targets": "--targets", "dqn": "--dqn",
             "browser_session": "--browser-session"}
@@ -72,6 +70,13 @@ def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | P
         if given[key] is not None:
             raise ValueError(f"{option} applies to {'MDP families' if bandit else 'dueling bandits'}; the config's "
                              f"data are {'a dueling bandit' if bandit else 'an MDP family'}'s")
+    for checkpoint in checkpoints:  # a policy of another family or size: one line naming both, before any data
+        module = load_model(checkpoint)
+        errors = fit_errors(module, dm)
+        if errors:
+            raise ValueError(f"--ckpt {checkpoint} does not fit the data of {' + '.join(map(str, configs))} "
+                             f"({type(dm.family).__name__ if hasattr(dm, 'family') else type(dm).__name__}): "
+                             f"{type(module).__name__} {'; '.join(errors)}")
     dm.prepare_data()
     if bandit:
         result = online_bandit.evaluate_online_bandit(
@@ -100,45 +105,4 @@ def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | P
     if out is not None:
         write_json_atomic(f"{out}.json", result)
         (online_bandit.online_bandit_figure if bandit else online_mdp.online_mdp_figure)(result, f"{out}.png")
-    return result
-
-
-def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="icprl evaluate online", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", action="append", required=True,
-                        help="the checkpoints' dataset config (repeat to stack overlays)")
-    parser.add_argument("--ckpt", action="append", default=None,
-                        help="an I-PRL checkpoint (repeat: training seeds of one method)")
-    parser.add_argument("--ad-ckpt", action="append", default=None,
-                        help="bandits: an AD-on-duels checkpoint (configs/ad_bandit.yaml; repeat: training seeds)")
-    parser.add_argument("--rule", action="append", choices=sorted(PAIR_RULES), default=None,
-                        help="the pair rule the agent asks by (repeat to compare; default action_uniform)")
-    parser.add_argument("--labels", choices=online_mdp.LABELS, default="own",
-                        help="the online label diagnostic: the answers as given, inverted, or fair coins")
-    parser.add_argument("--seeds", type=int, nargs="+", default=None,
-                        help="episode seeds (default: 0 1 for MDP families, 0 for dueling bandits)")
-    parser.add_argument("--episodes", type=int, default=None,
-                        help="MDP: querying episodes in a row, max_context / episodes queries each (default 5)")
-    parser.add_argument("--quality", default=None,
-                        help="MDP: the suite whose tasks and episodes are played online (default medium)")
-    parser.add_argument("--targets", type=float, nargs="*", default=None,
-                        help="MDP: returns to reach (default: the offline rows')")
-    parser.add_argument("--dqn", default=None, help="MDP: a JSON of `icprl baseline dqn` for its learning curve")
-    parser.add_argument("--rounds", type=int, default=None, help="bandits: duels per problem (default 200)")
-    parser.add_argument("--n-problems", type=int, default=None,
-                        help="bandits: the first N held-out problems (default all)")
-    parser.add_argument("--browser-session", default=None,
-                        help="MDP: a person answers each comparison in the browser (the page's address is printed); "
-                             "the answers are logged in this directory")
-    parser.add_argument("--out", help="also write <out>.json and the figure <out>.png")
-    return parser.parse_args(argv)
-
-
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    args = parse_args(argv)
-    result = evaluate_online(args.config, args.ckpt or [], args.rule or ["action_uniform"], args.labels, args.seeds,
-                             args.episodes, args.quality, args.targets, args.dqn, args.rounds, args.n_problems,
-                             args.out, args.ad_ckpt, args.browser_session)
-    print(json.dumps(result, indent=2), flush=True)
     return result

@@ -43,6 +43,7 @@ from icprl_lightning.data.suites import EvalSuite
 from icprl_lightning.deploy import load_agent
 from icprl_lightning.evaluation.rollout import rollout_seeds
 from icprl_lightning.families.base import TaskFamily
+from icprl_lightning.io import save_figure
 from icprl_lightning.metrics import mean_sem, mean_sem_or_none, per_task_mean
 from icprl_lightning.online import PAIR_RULES, OnlineAgent
 
@@ -228,4 +229,4 @@ def online_mdp_figure(out: dict[str, Any], path: str | Path) -> None:
     ax.set_title(f"online I-PRL on {out['tasks']} held-out tasks, labels: {out['labels']} "
                  f"({len(out['checkpoints'])} training seeds, mean ± sem)", fontsize=8)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)

@@ -15,11 +15,11 @@ its sizes and the evaluations it ``offers``.
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from typing import Any
 
 import yaml
+from jsonargparse import ArgumentError
 
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.data_contract import PreferenceData, missing_members
@@ -77,7 +77,7 @@ def run_datamodule(name: str, config: str, checkpoints: list[str], data: Sequenc
     file and what does not fit."""
     try:
         datamodule = datamodule_from_config(config, *data)
-    except (OSError, ValueError, yaml.YAMLError, argparse.ArgumentError) as e:
+    except (OSError, ValueError, yaml.YAMLError, ArgumentError) as e:
         files = " + ".join([config, *data])
         raise ValueError(f"--run {name}: config {files} does not give a DataModule ({_config_error(e)})") from None
     if not isinstance(datamodule, PreferenceData):

@@ -28,6 +28,8 @@ from rich.console import Console
 from rich.measure import Measurement
 from rich.table import Table
 
+from icprl_lightning.io import save_figure, write_atomic
+
 MDP_METRICS = ("return", "normalized_return", "success")
 REGRET_METRICS = (("weak_regret", "weak regret at h = H"), ("weak_regret_auc", "weak regret, mean over h = 1..H"),
                   ("strong_regret", "strong regret at h = H"),
@@ -248,7 +250,7 @@ def rollout_figure(payload: dict, path: str | Path) -> None:
         ax.set_ylabel(f"{metric.replace('_', ' ')} on held-out tasks")
     fig.suptitle(figure_title(f"{payload['title']}: {_error_bars(payload)}", fig.get_figwidth()), fontsize=9)
     axes[0][-1].legend(fontsize=7, bbox_to_anchor=(1.02, 1), loc="upper left")
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def diagnostics_figure(payload: dict, path: str | Path, metric: str) -> None:
@@ -275,7 +277,7 @@ def diagnostics_figure(payload: dict, path: str | Path, metric: str) -> None:
     axes[0][-1].legend(fontsize=7, bbox_to_anchor=(1.02, 1), loc="upper left")
     fig.suptitle(figure_title(f"{payload['title']}: context diagnostics, {_error_bars(payload)}", fig.get_figwidth()),
                  fontsize=9)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 # ---- bandit outputs (icprl evaluate) ---------------------------------------------------------------
@@ -341,7 +343,7 @@ def regret_figure(payload: dict, path: str | Path) -> None:
     axes[0, -1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1))
     fig.suptitle(figure_title(f"{payload['title']}: mean ± sem over {payload['n_eval_problems']} problems",
                               fig.get_figwidth()), fontsize=9)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
 
 
 def aligned_tables(markdown: str) -> str:
@@ -376,8 +378,8 @@ def write_outputs(payload: dict[str, Any], out: str | Path) -> None:
     diagnostics, ``<out>_diagnostics.png``."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(payload, indent=2))
-    out.with_suffix(".md").write_text(markdown_tables(payload))
+    write_atomic(out.with_suffix(".json"), json.dumps(payload, indent=2))
+    write_atomic(out.with_suffix(".md"), markdown_tables(payload))
     write_figures(payload, out)
 
 

@@ -34,8 +34,6 @@ does. It bounds what a better RewardGen objective can reach with one pair as con
 
 from __future__ import annotations
 
-import argparse
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,13 +41,11 @@ import numpy as np
 import torch
 
 from icprl_lightning.contexts import TrajectoryPreferenceContext
-from icprl_lightning.evaluation.reward_quality import MEASURES
 from icprl_lightning.evaluation.trajectory_data import tprl_datamodule
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.families.darkroom.env import N_ACTIONS, transition
 from icprl_lightning.families.darkroom.family import DarkRoomFamily
 from icprl_lightning.families.darkroom.oracle import optimal_actions
-from icprl_lightning.io import write_json_atomic
 
 # what the posterior conditions on: the label alone, the two trajectories alone (the behavior policy is
 # goal-directed, so its moves point at the goal), or the whole pair
@@ -168,26 +164,3 @@ def reward_bayes(data_config: str | Path, data_root: str | None = None) -> dict[
                 "posterior_on_goal": float(post[e][np.arange(len(goals)), goals].mean())}
     return {"data_config": str(data_config), "prior": f"uniform over the {family.size ** 2} cells",
             "temperature": temperature, "mixing": mixing, "evidence": EVIDENCE, "bayes": out}
-
-
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze reward-bayes", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data-config", type=Path, required=True,
-                        help="a DarkRoom T-PRL data config (a RewardGen run's config.yaml: the same held-out data)")
-    parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
-    parser.add_argument("--json", type=Path, help="also write the measures here")
-    args = parser.parse_args(argv)
-    result = reward_bayes(args.data_config, args.data_root)
-    if args.json is not None:
-        write_json_atomic(args.json, result)
-    out = result["bayes"]
-    keys = ("other_pair_accuracy", "reward_correlation", "posterior_on_goal")
-    names = {**MEASURES, "posterior_on_goal": "p(true goal)"}
-    print(f"Bayes-optimal reward from one pair on the held-out goals (prior {result['prior']}); low / medium / high")
-    print("| posterior from | " + " | ".join(names[k] for k in keys) + " |\n|---|" + "---|" * len(keys))
-    for e, what in EVIDENCE.items():
-        print(f"| {what} | " + " | ".join(" / ".join(f"{out[e][q][k]:.2f}" for q in QUALITIES) for k in keys) + " |")
-    if args.json is not None:
-        print(f"wrote {args.json}")
-    return result

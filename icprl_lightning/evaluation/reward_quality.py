@@ -26,7 +26,6 @@ agreement (``eval_label_statistics`` in the JSON).
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -38,7 +37,6 @@ from icprl_lightning.checkpoints import load_module
 from icprl_lightning.contexts import TrajectoryPreferenceContext
 from icprl_lightning.evaluation.trajectory_data import tprl_datamodule
 from icprl_lightning.families.base import QUALITIES
-from icprl_lightning.io import write_json_atomic
 from icprl_lightning.methods.reward_gen import RewardGenModule
 from icprl_lightning.metrics import mean_sem_or_none
 from icprl_lightning.samples import ContextSamples
@@ -147,25 +145,3 @@ def table(summary: dict[str, dict[str, dict[str, float | None]]]) -> str:
     lines = ["| quality | " + " | ".join(MEASURES.values()) + " |", "|---|" + "---|" * len(MEASURES)]
     lines += [f"| {q} | " + " | ".join(cell(summary[q][k]) for k in MEASURES) + " |" for q in QUALITIES]
     return "\n".join(lines)
-
-
-def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze reward-quality", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--ckpt", type=Path, nargs="+", action="extend", required=True,
-                        help="RewardGen checkpoint(s) of one configuration (repeat or list: training seeds)")
-    parser.add_argument("--data-config", type=Path, required=True,
-                        help="the checkpoints' T-PRL data config (its held-out evaluation splits are scored)")
-    parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")
-    parser.add_argument("--json", type=Path, help="also write the measures here")
-    args = parser.parse_args(argv)
-    out = reward_quality(args.data_config, args.ckpt, args.data_root)
-    if args.json is not None:
-        write_json_atomic(args.json, out)
-    print(f"RewardGen (pair_source={out['pair_source']}) on held-out tasks, mean ± sem over "
-          f"{len(out['checkpoints'])} checkpoint(s)")
-    print(table(out["mean"]))
-    print(f"own pair read with: {out['own_pair_reading']}")
-    if args.json is not None:
-        print(f"wrote {args.json}")
-    return out

@@ -13,18 +13,16 @@ run whose first logger is a ``CSVLogger`` has ``<run>/metrics.csv``) and prints:
   per quality, with the behavior and optimal/expert rows as logged) and the bandits' weak-regret table
   (``evaluation.report``);
 
-and draws the curves, one panel per kind of metric (``loss``, ``normalized_return``, ...), into a PNG
-with matplotlib's ``Figure`` (Agg; no display or server).
+and draws the curves into a PNG with matplotlib's ``Figure`` (Agg; no display or server): the held-out return
+per context quality (low, medium, high, its behavior policy dashed) against optimizer steps and against
+training seconds, the losses, then the other metrics, one panel per kind.
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import re
-import sys
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,6 +31,7 @@ from rich.table import Table
 
 from icprl_lightning.evaluation.report import regret_table, results_table
 from icprl_lightning.families.base import QUALITIES
+from icprl_lightning.io import save_figure
 
 FIGURE_NAME = "curves.png"
 MAX_PANELS = 12
@@ -90,18 +89,21 @@ def read_metrics(path: Path) -> Curves:
                     step = int(float(row["step"]))
                     epoch = int(float(row["epoch"])) if row.get("epoch") else None
                     values = {k: float(v) for k, v in row.items() if k not in ("step", "epoch") and k and v}
-                except (TypeError, ValueError):
-                    raise ValueError(f"{path}: line {line} holds a value that is not a number") from None
+                except (TypeError, ValueError, OverflowError):  # OverflowError: a step of inf (1e400)
+                    raise ValueError(f"{path}: line {line} holds a value that is not a number (or a step or epoch "
+                                     "that is not a finite integer)") from None
                 for name, value in values.items():
                     curves.setdefault(name, []).append(Point(step, epoch, value))
     except UnicodeDecodeError:
         raise ValueError(f"{path}: not a text file") from None
+    except csv.Error as e:  # a cell over csv's field size limit, a NUL byte, ...
+        raise ValueError(f"{path}: not a readable CSV file ({e})") from None
     return curves
 
 
 def lower_is_better(name: str) -> bool:
     leaf = name.rsplit("/", 1)[-1]
-    return any(word in leaf for word in ("loss", "regret", "error", "seconds"))
+    return any(word in leaf for word in ("loss", "regret", "error"))
 
 
 def learning_curves(curves: Curves) -> Curves:
@@ -111,6 +113,9 @@ def learning_curves(curves: Curves) -> Curves:
 
 
 def best_point(name: str, points: list[Point]) -> Point | None:
+    """The best logged value (None for the clock's ``time/*``, where no value is better)."""
+    if is_clock(name):
+        return None
     finite = [p for p in points if math.isfinite(p.value)]
     if not finite:
         return None
@@ -153,7 +158,7 @@ def _quality_order(prefix: str) -> tuple:
     """``val/<env>/<quality>[/<diagnostic>]`` by env, then low, medium, high, then diagnostic."""
     parts = prefix.split("/")
     quality = QUALITIES.index(parts[2]) if len(parts) > 2 and parts[2] in QUALITIES else len(QUALITIES)
-    return parts[1], quality, prefix
+    return (parts[1] if len(parts) > 1 else ""), quality, prefix
 
 
 def regret_results(curves: Curves) -> dict[str, dict[str, dict[str, float]]]:
@@ -166,41 +171,93 @@ def regret_results(curves: Curves) -> dict[str, dict[str, dict[str, float]]]:
     return results
 
 
-def panels(curves: Curves) -> dict[str, Curves]:
-    """The figure's panels: curves grouped by their last name component (``train/loss`` and ``val/loss``
-    share ``loss``), the paper's metrics first, at most ``MAX_PANELS``."""
+def is_clock(name: str) -> bool:
+    """``time/*``: the training clock's bookkeeping, an axis for the curves rather than a curve."""
+    return name.startswith("time/")
+
+
+def quality_curves(curves: Curves, key: str) -> Curves:
+    """``val/<env>/<quality>/<key>`` of the own context, by env then low, medium, high: ``{env/quality: points}``."""
+    found = {name: points for name, points in curves.items()
+             if name.startswith("val/") and not name.startswith("val/bandit/") and name.count("/") == 3
+             and name.endswith(f"/{key}")}
+    ordered = sorted(found, key=lambda name: _quality_order(name.rpartition("/")[0]))
+    return {name.removeprefix("val/").removesuffix(f"/{key}"): found[name] for name in ordered}
+
+
+def panels(curves: Curves) -> list[tuple[str, str, Curves]]:
+    """The figure's panels, ``(title, x axis, curves)``: the held-out return per context quality against
+    optimizer steps and against training seconds, the losses, each bandit's weak regret, then every other kind
+    of metric (grouped by their last name component) up to ``MAX_PANELS``; never the clock itself."""
+    shown: list[tuple[str, str, Curves]] = []
+    key = next((k for k in ("return", "normalized_return") if quality_curves(curves, k)), None)
+    drawn: set[str] = set()
+    if key:
+        per_quality = quality_curves(curves, key)
+        drawn |= {f"val/{name}/{key}" for name in per_quality}
+        shown.append((f"held-out {key.replace('_', ' ')} per context quality", "step", per_quality))
+        if "time/train_seconds" in curves:
+            shown.append((f"held-out {key.replace('_', ' ')} per context quality", "seconds", per_quality))
+    rest = {n: p for n, p in learning_curves(curves).items() if n not in drawn and not is_clock(n)}
+    losses = {n: p for n, p in rest.items() if "loss" in n.rsplit("/", 1)[-1]}
+    if losses:
+        shown.append(("losses", "step", losses))
     groups: dict[str, Curves] = {}
-    for name, points in learning_curves(curves).items():
-        groups.setdefault(name.rsplit("/", 1)[-1], {})[name] = points
+    for name, points in rest.items():
+        if name not in losses:
+            groups.setdefault(name.rsplit("/", 1)[-1], {})[name] = points
+    groups = {g: dict(sorted(m.items(), key=lambda item: _quality_order(item[0].rpartition("/")[0])))
+              for g, m in groups.items()}  # low, medium, high
     order = sorted(groups, key=lambda g: (FIRST_PANELS.index(g) if g in FIRST_PANELS else len(FIRST_PANELS), g))
-    return {g: groups[g] for g in order[:MAX_PANELS]}
+    shown += [(group, "step", groups[group]) for group in order]
+    return shown[:MAX_PANELS]
+
+
+def seconds_at(curves: Curves) -> dict[int, float]:
+    """Training seconds (``time/train_seconds``, validation excluded) at each step the clock logged."""
+    return {p.step: p.value for p in curves.get("time/train_seconds", [])}
 
 
 def curves_figure(curves: Curves, path: Path, title: str) -> None:
-    """One panel per kind of metric, value vs optimizer step, written to ``path`` (PNG)."""
+    """The panels of ``panels`` in a grid, written to ``path`` (PNG); a dashed line is the behavior policy
+    of that context quality, the bar an in-context learner should clear."""
     from matplotlib.figure import Figure
 
-    groups = panels(curves)
-    if not groups:
+    shown = panels(curves)
+    if not shown:
         raise ValueError(f"{title}: no metric to draw")
-    cols = min(3, len(groups))
-    rows = math.ceil(len(groups) / cols)
+    seconds = seconds_at(curves)
+    cols = min(3, len(shown))
+    rows = math.ceil(len(shown) / cols)
     fig = Figure(figsize=(5 * cols, 3.4 * rows), layout="constrained")
     fig.suptitle(title, fontsize=9)
-    for i, (group, members) in enumerate(groups.items()):
+    for i, (panel, axis, members) in enumerate(shown):
         ax = fig.add_subplot(rows, cols, i + 1)
+        dashed = False
         for name, points in members.items():
-            line, = ax.plot([p.step for p in points], [p.value for p in points],
-                            marker="o" if len(points) < 30 else None, markersize=3,
-                            label=name.removesuffix(f"/{group}") or name)
-            behavior = curves.get(f"{name.rpartition('/')[0]}/behavior_{group}")
-            if behavior:  # the context's behavior policy, the bar an in-context learner should clear
+            kept = [p for p in points if axis == "step" or p.step in seconds]
+            xs = [p.step if axis == "step" else seconds[p.step] for p in kept]
+            line, = ax.plot(xs, [p.value for p in kept], marker="o" if len(kept) < 30 else None, markersize=3,
+                            label=name)
+            leaf = panel.removeprefix("held-out ").partition(" per ")[0].replace(" ", "_")
+            behavior = curves.get(f"val/{name}/behavior_{leaf}") if panel.startswith("held-out") else None
+            if behavior:
                 ax.axhline(behavior[-1].value, color=line.get_color(), linestyle="--", linewidth=0.8)
-        ax.set_title(group + (" (dashed: behavior policy)" if group in ROLLOUT_KEYS[:3] else ""), fontsize=9)
-        ax.set_xlabel("step", fontsize=8)
+                dashed = True
+        ax.set_title(panel + (" (dashed: behavior policy)" if dashed else ""), fontsize=9)
+        ax.set_xlabel("optimizer step" if axis == "step" else "training seconds (validation excluded)", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.legend(fontsize=6)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
+
+
+def run_name(run: Path) -> str:
+    """``run`` relative to the working directory when it lies inside it, else its last two components."""
+    resolved = run.resolve()
+    try:
+        return str(resolved.relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(Path(*resolved.parts[-2:]))
 
 
 def report(run: Path, figure: Path | None, console: Console) -> Path | None:
@@ -219,30 +276,6 @@ def report(run: Path, figure: Path | None, console: Console) -> Path | None:
     if regrets:
         console.print(regret_table(regrets, "Weak regret on held-out problems, last logged"))
     if figure is not None:
-        curves_figure(curves, figure, str(run))
+        curves_figure(curves, figure, f"{run_name(run)}: learning curves")
         console.print(f"figure: {figure}")
     return figure
-
-
-def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="icprl report", description="A run's learning curves and last held-out "
-                                     "results, from its metrics.csv; draws the curves into a PNG.")
-    parser.add_argument("run", type=Path, help="the run directory `icprl fit` printed (or a metrics.csv)")
-    parser.add_argument("--figure", type=Path, default=None,
-                        help=f"where to write the PNG (default: <run>/{FIGURE_NAME})")
-    parser.add_argument("--no-figure", action="store_true", help="print the report only")
-    args = parser.parse_args(list(sys.argv[1:] if argv is None else argv))
-    run_dir = args.run.parent if args.run.is_file() else args.run
-    figure = None if args.no_figure else (args.figure or run_dir / FIGURE_NAME)
-    console = Console()
-    if not console.is_terminal:
-        console.width = 160  # a log file or a pipe: rows unwrapped
-    try:
-        report(args.run, figure, console)
-    except (ValueError, OSError) as e:
-        sys.stderr.write(f"icprl report: error: {e}\n")
-        raise SystemExit(2) from None
-
-
-if __name__ == "__main__":
-    main()

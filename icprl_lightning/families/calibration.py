@@ -20,14 +20,25 @@ Every family shares ``invert_quality_curve``.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from icprl_lightning.metrics import mean_sem, per_task_mean
 
-if TYPE_CHECKING:
-    from icprl_lightning.families.base import TaskFamily
+
+class Simulated(Protocol):
+    """What the simulation reads of a family (every ``families.base.TaskFamily`` has it): its horizon, its oracle's
+    uniform and optimal actions, its task splits and its episode rollouts."""
+
+    horizon: int
+
+    @property
+    def oracle(self) -> Any: ...
+
+    def tasks(self, split: str) -> np.ndarray: ...
+
+    def episode_rollouts(self, tasks: np.ndarray, rng: np.random.Generator) -> Any: ...
 
 CALIBRATION_GRID = tuple(np.round(np.linspace(0.0, 1.0, 21), 2))
 
@@ -49,7 +60,7 @@ def invert_quality_curve(mixing: np.ndarray, quality: np.ndarray, targets: Mappi
     return out
 
 
-def simulate_returns(family: TaskFamily, tasks: np.ndarray, mixing: np.ndarray, seed: int) -> np.ndarray:
+def simulate_returns(family: Simulated, tasks: np.ndarray, mixing: np.ndarray, seed: int) -> np.ndarray:
     """Latent returns [P, E] of the mixed policies ``mixing`` [P] on episodes of ``tasks`` [E].
 
     Common random numbers: every policy meets the same starts (one env seed) and, on episode e at step
@@ -71,7 +82,7 @@ def simulate_returns(family: TaskFamily, tasks: np.ndarray, mixing: np.ndarray, 
     return total.reshape(len(ps), n)
 
 
-def calibrate_by_simulation(family: TaskFamily, targets: Mapping[str, float], episodes: int, seed: int,
+def calibrate_by_simulation(family: Simulated, targets: Mapping[str, float], episodes: int, seed: int,
                             grid: tuple[float, ...] = CALIBRATION_GRID) -> dict[str, dict[str, float]]:
     """The mixing level of each target normalized return, measured on ``episodes`` training episodes."""
     fit_seed, check_seed = np.random.SeedSequence(seed).generate_state(2)
@@ -87,7 +98,7 @@ def calibrate_by_simulation(family: TaskFamily, targets: Mapping[str, float], ep
             for (name, p), q in zip(chosen.items(), achieved[1:-1], strict=True)}
 
 
-def references_by_simulation(family: TaskFamily, tasks: np.ndarray, mixing: Mapping[str, float], episodes: int,
+def references_by_simulation(family: Simulated, tasks: np.ndarray, mixing: Mapping[str, float], episodes: int,
                              rng: np.random.Generator) -> dict[str, Any]:
     """Behavior, uniform and optimal returns on each held-out task (``episodes`` each), and their means."""
     task_of = np.repeat(np.arange(len(tasks)), episodes)

@@ -1,7 +1,8 @@
 """Gymnasium ids for the task families' envs: ``icprl/DarkRoom-v0`` and ``icprl/MetaWorldReach-v0``.
 
-Importing this module registers them (``import icprl_lightning.families.registration``, or let Gymnasium
-import it: ``gymnasium.make("icprl_lightning.families.registration:icprl/DarkRoom-v0", goal=[3, 4])``).
+``import icprl_lightning`` registers them (this module's ``register_envs``; Gymnasium can also import it:
+``gymnasium.make("icprl_lightning.families.registration:icprl/DarkRoom-v0")``). Each id makes a valid env from
+its defaults alone: DarkRoom's first held-out goal, the centre of Reach's goal box.
 Gymnasium 1.x has no plugin discovery (0.26's ``gymnasium.envs`` entry points were removed in 1.0), so
 registration happens on import only. The entry points are strings: registering imports neither torch nor
 MuJoCo, which load when an env is first made.
@@ -19,6 +20,7 @@ reward, so a Gymnasium reward would mislead every tool that maximizes it (``docs
 from __future__ import annotations
 
 import gymnasium as gym
+import numpy as np
 
 # id -> (single-env entry point, vector entry point)
 ENV_IDS = {
@@ -27,6 +29,16 @@ ENV_IDS = {
     "icprl/MetaWorldReach-v0": ("icprl_lightning.families.metaworld_reach.gym_env:reach_env",
                                 "icprl_lightning.families.metaworld_reach.gym_env:reach_vector_env"),
 }
+
+
+def check_num_envs(env_id: str, num_envs: object, goals: object) -> None:
+    """``num_envs`` is an integer >= 1 and, with ``goals``, their number: a mismatch names ``num_envs``."""
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
+        raise ValueError(f"{env_id}: num_envs must be an integer >= 1, got {num_envs!r}")
+    rows = np.shape(goals)[0] if goals is not None and np.ndim(goals) >= 1 else None
+    if rows is not None and np.ndim(goals) == 2 and rows != num_envs:
+        raise ValueError(f"{env_id}: num_envs is {num_envs} but goals has {rows} rows (one per env): pass "
+                         f"num_envs={rows}")
 
 
 def register_envs() -> None:

@@ -21,7 +21,14 @@ from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
 from icprl_lightning.models.normalization import InputNormalizer
 from icprl_lightning.models.policy import LAYOUTS, InContextPolicy
 from icprl_lightning.samples import Samples
-from icprl_lightning.validation import check_choice, check_int, check_kind, check_optimizer, check_sizes
+from icprl_lightning.validation import (
+    check_bool,
+    check_choice,
+    check_int,
+    check_kind,
+    check_optimizer,
+    check_sizes,
+)
 
 
 def fit_input_normalizers(module: L.LightningModule) -> None:
@@ -73,16 +80,22 @@ class InContextModule(L.LightningModule):
         owner = type(self).__name__
         check_kind(owner, "context_kind", context_kind)
         check_sizes(owner, state_dim, action_dim)
+        check_bool(owner, "discrete", discrete)
         check_int(owner, "max_context", max_context, 1)
         check_optimizer(owner, lr, weight_decay)
         check_choice(owner, "lr_schedule", lr_schedule, LR_SCHEDULES)
         check_int(owner, "warmup_steps", warmup_steps, 0)
         if queries_per_context is not None:
             check_int(owner, "queries_per_context", queries_per_context, 1)
-        check_choice(owner, "normalize_inputs", normalize_inputs, (True, False))
+        check_bool(owner, "normalize_inputs", normalize_inputs)
         check_choice(owner, "layout", layout, LAYOUTS)
         super().__init__()
         self.backbone = save_backbone(self, backbone)
+        # kept on the module, not read back from hparams: a subclass's constructor (a user's method) need not
+        # re-declare every argument of this one for save_hyperparameters to record it
+        self.optimizer_settings = {"lr": lr, "weight_decay": weight_decay, "lr_schedule": lr_schedule,
+                                   "warmup_steps": warmup_steps}
+        self.queries_per_context = queries_per_context
         self.context_kind = context_kind
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.policy = InContextPolicy(context_kind, state_dim, self.action_spec, self.backbone, max_context,
@@ -114,7 +127,7 @@ class InContextModule(L.LightningModule):
         and the sequence is H + k tokens instead of 2H (``benchmarks/training_throughput.py`` measures the
         gain). Validation always scores all H, so ``val/loss`` does not depend on k.
         """
-        k = self.hparams.get("queries_per_context")
+        k = self.queries_per_context
         if k is None or k >= length or not self.training:
             return torch.arange(length, device=device)
         return torch.randperm(length, device=device)[:k].sort().values
@@ -138,9 +151,10 @@ class InContextModule(L.LightningModule):
 
     def configure_optimizers(self):
         """AdamW at ``lr``, constant or on the warm-up + cosine schedule of ``methods/schedule.py``."""
-        optimizer = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
-        return with_schedule(optimizer, self.hparams.get("lr_schedule", "constant"),
-                             self.hparams.get("warmup_steps", 0), lambda: self.trainer.estimated_stepping_batches)
+        settings = self.optimizer_settings
+        optimizer = torch.optim.AdamW(self.parameters(), lr=settings["lr"], weight_decay=settings["weight_decay"])
+        return with_schedule(optimizer, settings["lr_schedule"], settings["warmup_steps"],
+                             lambda: self.trainer.estimated_stepping_batches)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""

@@ -43,8 +43,6 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any, NoReturn
 
-import yaml
-
 from icprl_lightning.reproduce.tables import (
     ADEvaluation,
     Evaluation,
@@ -54,6 +52,7 @@ from icprl_lightning.reproduce.tables import (
     needed_runs,
     stages,
 )
+from icprl_lightning.untrusted import UntrustedFileError, read_yaml
 
 EXPERIMENTS = Path("configs/experiment")  # relative to the working directory, as every config path of a table
 ACTS = {"greedy": ("--greedy",), "sample": ("--sample",)}
@@ -86,7 +85,7 @@ def load_table(source: str | Path, folder: Path = EXPERIMENTS) -> Table:
     """The table named ``source`` in ``folder``, or the one of the experiment file at path ``source``
     (``*.yaml``); every config and overlay it names must exist (paths relative to the working directory)."""
     path = Path(source) if str(source).endswith((".yaml", ".yml")) else folder / f"{source}.yaml"
-    if not path.is_file():
+    if not path.exists():
         if path.suffix and Path(source).suffix:
             raise TableError(f"{path}: no such experiment file")
         names = table_names(folder)
@@ -96,9 +95,9 @@ def load_table(source: str | Path, folder: Path = EXPERIMENTS) -> Table:
         hint = f"did you mean {close[0]!r}? " if close else ""
         raise TableError(f"no table {source!r} in {folder}/; {hint}its tables: {', '.join(names)}")
     try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        raise TableError(f"{path}: not YAML ({e})".replace("\n", " ")) from None
+        data = read_yaml(path, "experiment file")
+    except UntrustedFileError as e:
+        raise TableError(str(e)) from None
     return _Reader(path, folder).table(data)
 
 
@@ -304,9 +303,9 @@ class _Reader:
     def overlay_flags(self, where: str, overlay: str) -> list[str]:
         """The flags of a values-only overlay: one per leaf, its dotted path, in the file's order."""
         try:
-            data = yaml.safe_load(Path(overlay).read_text())
-        except yaml.YAMLError as e:
-            self.fail(where, f"{overlay} is not YAML ({e})".replace("\n", " "))
+            data = read_yaml(overlay, "config overlay")
+        except UntrustedFileError as e:
+            self.fail(where, str(e))
         flags: list[str] = []
 
         def walk(node: Any, keys: tuple[str, ...]) -> None:
@@ -339,7 +338,7 @@ class _Reader:
     # ---- evaluations ----------------------------------------------------------------------------------------------
 
     def evaluation(self, where: str, data: Any) -> Evaluation | OnlineEvaluation | ADEvaluation:
-        data = self.keys(where, data, ("suffix", "act", "data", "online", "ad"), ("suffix",))
+        data = self.keys(where, data, ("suffix", "act", "data", "online", "ad", "evaluation", "options"), ("suffix",))
         suffix = self.text(f"{where}.suffix", data["suffix"])
         if "ad" in data:
             return self.ad_evaluation(where, suffix, data)
@@ -347,7 +346,7 @@ class _Reader:
             act = self.choice(f"{where}.act", data["act"], tuple(ACTS)) if "act" in data else None
             files = tuple(self.file(f"{where}.data[{i}]", f) for i, f in enumerate(self.texts(f"{where}.data",
                                                                                               data.get("data", []))))
-            return Evaluation(suffix, ACTS[act] if act else (), files)
+            return Evaluation(suffix, (ACTS[act] if act else ()) + self.registered(where, data), files)
         if "data" in data:
             self.fail(f"{where}.data", "an online evaluation deploys on the runs' own data")
         if "act" in data:
@@ -379,6 +378,29 @@ class _Reader:
         if "episodes" in values and "rounds" in values:
             self.fail(f"{where}.online", "episodes (an MDP family) or rounds (a bandit), not both")
         return OnlineEvaluation(**values)
+
+    def registered(self, where: str, data: dict) -> tuple[str, ...]:
+        """``evaluation: NAME`` (a registered evaluation, ``evaluation/base.py``) and its ``options`` as the flags of
+        ``icprl evaluate``; none without ``evaluation``."""
+        if "evaluation" not in data:
+            if "options" in data:
+                self.fail(f"{where}.options", "options are an evaluation's: name it with evaluation: NAME")
+            return ()
+        import yaml
+
+        from icprl_lightning.registry import EVALUATIONS
+
+        name = self.text(f"{where}.evaluation", data["evaluation"])
+        if name not in EVALUATIONS.names():
+            self.fail(f"{where}.evaluation", f"{name!r} is not a registered evaluation ({EVALUATIONS.short_names()})")
+        options = data.get("options") or {}
+        if not isinstance(options, dict):
+            self.fail(f"{where}.options", f"must be a mapping of keyword: value, got {options!r}")
+        flags = ("--evaluation", name)
+        for key, value in options.items():  # a value as YAML writes it inline: the command reads it back as YAML
+            text = yaml.safe_dump(value, default_flow_style=True).removesuffix("...\n").strip()
+            flags += ("--option", f"{key}={text}")
+        return flags
 
     def ad_evaluation(self, where: str, suffix: str, data: dict) -> ADEvaluation:
         for key in ("act", "data", "online"):

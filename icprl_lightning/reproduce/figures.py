@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from icprl_lightning.evaluation.report import figure_title
 from icprl_lightning.families.base import QUALITIES
+from icprl_lightning.io import save_figure
 from icprl_lightning.reproduce.tables import Table
 
 if TYPE_CHECKING:
@@ -45,7 +46,7 @@ def lambda_beta_figure(table: Table, out_dir: Path) -> None:
     axes[-1].legend(fontsize=6, bbox_to_anchor=(1.02, 1), loc="upper left")
     fig.suptitle(figure_title(f"{table.title} (corners: 3 training seeds, mean ± sem over seeds; others: 1 seed, "
                               "± sem over held-out goals)", fig.get_figwidth()), fontsize=9)
-    fig.savefig(out_dir / f"{table.name}.png", dpi=120)
+    save_figure(fig, out_dir / f"{table.name}.png", dpi=120)
 
 
 def teacher_noise_figure(table: Table, out_dir: Path) -> None:
@@ -74,23 +75,25 @@ def teacher_noise_figure(table: Table, out_dir: Path) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6)
     ax.set_title("ICPO pretrained on a scripted teacher's labels (3 training seeds, mean ± sem)", fontsize=8)
-    fig.savefig(out_dir / f"{table.name}_vs_noise.png", dpi=120)
+    save_figure(fig, out_dir / f"{table.name}_vs_noise.png", dpi=120)
 
 
 def read_ceiling(path: str | Path) -> dict[str, float]:
-    """The held-out return a Bayes-optimal reader of the labels reaches, per context quality, from the JSON of
-    ``icprl analyze label-ceiling``; ``ValueError`` naming what is missing when the file is not one."""
-    from icprl_lightning.evaluation.label_ceiling import CEILING
+    """The held-out return a Bayes-optimal reader of the whole context reaches (``CEILING_READER``), per context
+    quality, from the JSON of ``icprl analyze label-ceiling``; ``ValueError`` naming what is missing when the file is
+    not one."""
+    from icprl_lightning.evaluation.label_ceiling import CEILING, CEILING_READER
 
     try:
         payload = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
         raise ValueError(f"{path} is not JSON ({e})") from None
-    ceiling = {q: payload[q][CEILING] for q in QUALITIES
-               if isinstance(payload, dict) and isinstance(payload.get(q), dict) and CEILING in payload[q]}
+    rows = {q: payload[q].get(CEILING_READER) for q in QUALITIES
+            if isinstance(payload, dict) and isinstance(payload.get(q), dict)}
+    ceiling = {q: row[CEILING] for q, row in rows.items() if isinstance(row, dict) and CEILING in row}
     if not ceiling or not all(isinstance(v, int | float) for v in ceiling.values()):
-        raise ValueError(f"{path} holds no numeric {CEILING!r} for any quality ({', '.join(QUALITIES)}): "
-                         "write it with `icprl analyze label-ceiling`")
+        raise ValueError(f"{path} holds no numeric {CEILING_READER}.{CEILING} for any quality "
+                         f"({', '.join(QUALITIES)}): write it with `icprl analyze label-ceiling`")
     return ceiling
 
 
@@ -122,7 +125,7 @@ def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -
                                 label=name if j == 0 else None)
             if quality in ceiling:
                 ax.axhline(ceiling[quality], color="black", linestyle="--", linewidth=1,
-                           label="Bayes-optimal reader of the labels")
+                           label="Bayes-optimal reader of the context")
             ax.set_title(f"{quality} contexts", fontsize=9)
             ax.set_xlabel(x_label)
             ax.grid(alpha=0.3)
@@ -130,7 +133,7 @@ def curve_figure(table: Table, curves: dict[str, dict[str, list]], path: Path) -
     grid[0][-1].legend(fontsize=7)
     fig.suptitle(figure_title(f"{table.title}: return during training, one line per training seed",
                               fig.get_figwidth()), fontsize=9)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     return fig
 
 

@@ -32,7 +32,6 @@ seconds, the checkpoints and the exact commands.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -47,7 +46,6 @@ from pathlib import Path
 import yaml
 
 from icprl_lightning.io import write_json_atomic
-from icprl_lightning.reproduce.experiments import EXPERIMENTS, TableError, load_table, load_tables
 from icprl_lightning.reproduce.figures import FIGURES, curve_figure
 from icprl_lightning.reproduce.fit_logs import final_epoch_means, learning_curve
 from icprl_lightning.reproduce.tables import (
@@ -60,6 +58,7 @@ from icprl_lightning.reproduce.tables import (
     slug,
     stages,
 )
+from icprl_lightning.untrusted import UntrustedFileError, read_json
 
 
 class RecordError(ValueError):
@@ -73,8 +72,8 @@ def read_record(path: Path) -> dict | None:
         return None
     fix = "delete it, or pass --refit to train every run again"
     try:
-        record = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        record = read_json(path, "fit record")
+    except UntrustedFileError as e:
         raise RecordError(f"fit record {path} is damaged ({e}); {fix}") from None
     if not isinstance(record, dict):
         raise RecordError(f"fit record {path} is not an icprl reproduce record (a JSON {type(record).__name__}, "
@@ -194,7 +193,8 @@ def _run_fit(command: list[str], inputs: str, log: Path, record: Path, threads: 
     env = {**os.environ, "OMP_NUM_THREADS": str(threads), "WANDB_MODE": os.environ.get("WANDB_MODE", "disabled")}
     start = time.time()
     with open(log, "w") as out:
-        code = subprocess.run([sys.executable, "-m", "icprl_lightning.cli", *command[1:]], stdout=out,
+        code = subprocess.run([sys.executable, "-m", "icprl_lightning",
+                               *command[1:]], stdout=out,
                               stderr=subprocess.STDOUT, env=env).returncode
     if code != 0:
         raise RuntimeError(f"{shlex.join(command)} failed (exit {code}); its log: {log}")
@@ -284,8 +284,6 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
         return {"fits": {f"{n}-seed{s}": r for (n, s), r in sorted(done.items())}, "fit_wall_seconds": fit_seconds}
     checkpoints = {run.name: [done[(run.name, s)]["checkpoint"] for s in run_seeds[run.name]] for run in table.runs}
     evaluations = []
-    from icprl_lightning.evaluation.command import main as evaluate_main
-
     for evaluation in table.evaluations if any(run.evaluated for run in table.runs) else ():
         began = time.time()
         if isinstance(evaluation, OnlineEvaluation):
@@ -294,7 +292,9 @@ def reproduce(table: Table, seeds: list[int], jobs: int, work: Path, out_dir: Pa
             record = {"ad": evaluate_ad(table, evaluation, checkpoints, out_dir)}
         else:
             command = evaluate_command(table, evaluation, checkpoints, out_dir)
-            evaluate_main(command[2:])
+            # run as recorded, in a process of its own like every fit (and the commands room stays above this one)
+            if subprocess.run([sys.executable, "-m", "icprl_lightning", *command[1:]]).returncode != 0:
+                raise RuntimeError(f"{shlex.join(command)} failed; its output is above")
             record = {"command": shlex.join(command)}
         evaluations.append({**record, "seconds": round(time.time() - began, 1)})
     if table.figure:
@@ -319,6 +319,7 @@ def redraw(table: Table, out_dir: Path) -> list[Path]:
     the learning curves in ``<table>_reproduce.json``), without training or evaluating; returns the files read.
     An online evaluation draws its own figure when it runs."""
     from icprl_lightning.evaluation.ad_command import ad_figure
+    from icprl_lightning.evaluation.base import evaluation_of
     from icprl_lightning.evaluation.report import write_figures
 
     offline = [e for e in table.evaluations if isinstance(e, Evaluation)]
@@ -333,59 +334,11 @@ def redraw(table: Table, out_dir: Path) -> list[Path]:
         payload = json.loads(source.read_text())
         if source in ad:
             ad_figure(payload, source.with_suffix(".png"))
+        elif (registered := evaluation_of(payload)) is not None:
+            registered.figure(payload, source.with_suffix(".png"))
         else:
             write_figures(payload, source.with_suffix(""))
     if table.figure:
         FIGURES[table.figure](table, out_dir)
     curve_figure(table, json.loads(sources[-1].read_text())["learning_curves"], out_dir / f"{table.name}_curve.png")
     return sources
-
-
-def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(prog="icprl reproduce", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("table", nargs="?", help=f"a table of {EXPERIMENTS}/ (its file's name), or the path of an "
-                        "experiment file (*.yaml)")
-    parser.add_argument("--list", action="store_true", help=f"list the tables of {EXPERIMENTS}/ and what one fit "
-                        "costs")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
-    parser.add_argument("--jobs", type=int, default=2, help="fits at a time (each gets cores / jobs threads)")
-    parser.add_argument("--threads", type=int, help="torch threads per fit (default: cores / jobs)")
-    parser.add_argument("--work", default="runs/reproduce", help="fit logs, run directories and records")
-    parser.add_argument("--out", default="docs/results", help="where the tables and figures go: one folder per "
-                        "table, <out>/<table>/")
-    parser.add_argument("--refit", action="store_true", help="train again even where a fit is recorded")
-    parser.add_argument("--dry-run", action="store_true", help="print the fit commands, run nothing")
-    parser.add_argument("--only", nargs="+", metavar="RUN", help="train only these runs (and the earlier stages "
-                        "they need), evaluate nothing")
-    parser.add_argument("--render", action="store_true", help="only rewrite the generated docs from the JSON in "
-                        "docs/results: each table's summary.md (bootstrap intervals), the index, the claims table of "
-                        "docs/RESULTS.md and README.md (reproduce/render.py)")
-    parser.add_argument("--redraw", action="store_true", help="only redraw the figures from the table's JSON "
-                        "outputs in --out (after a change to the figure code)")
-    args = parser.parse_args(argv)
-    if args.jobs < 1:
-        parser.error(f"--jobs must be ≥ 1, got {args.jobs}")
-    try:  # a user's file, not a bug: one line, no traceback
-        if args.render:
-            from icprl_lightning.reproduce.render import render
-
-            for path in render():
-                print(f"wrote {path}", flush=True)
-            return {}
-        if args.list or args.table is None:
-            for table in load_tables().values():
-                runs = f"{len(table.runs)} runs of {table.runs_from}" if table.runs_from else f"{len(table.runs)} runs"
-                online = " (online)" if any(isinstance(e, OnlineEvaluation) for e in table.evaluations) else ""
-                print(f"{table.name}: {table.title}{online}; {runs} × seeds; {table.budget}")
-            return {}
-        table = load_table(args.table)
-        if args.redraw:
-            sources = redraw(table, Path(args.out) / table.name)
-            print(f"{table.name}: figures redrawn from {', '.join(map(str, sources))}", flush=True)
-            return {}
-        return reproduce(table, args.seeds, args.jobs, Path(args.work), Path(args.out) / table.name, args.refit,
-                         args.dry_run,
-                         args.threads, args.only)
-    except (RecordError, TableError) as e:
-        parser.exit(2, f"{parser.prog}: error: {e}\n")

@@ -32,7 +32,7 @@ from icprl_lightning.annotators import (
     TrajectoryQueries,
 )
 from icprl_lightning.annotators.labels import check_labels, count_labels, resolve_labels
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 from icprl_lightning.data.settings import RewardTrajectories, StepPreferences, TrajectoryPairs
 from icprl_lightning.preferences import AgreementTally, expected_agreement, label_agreement, sample_preferences
 from icprl_lightning.validation import HyperparameterError

@@ -45,7 +45,7 @@ def test_the_reference_covers_every_config():
 
 def test_the_command_compares_against_a_reference(tmp_path, capsys):
     """``icprl analyze checksums --compare``: status 0 when the bytes match, 1 naming every changed file."""
-    from icprl_lightning.cli import main
+    from icprl_lightning.commands import main
 
     config = "configs/icpo_bandit.yaml"
     assert config in FAST

@@ -15,10 +15,10 @@ from factories import darkroom_data
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from icprl_lightning.cli import SUBCOMMANDS
-from icprl_lightning.data.importer import main as import_main
+from icprl_lightning.commands import SUBCOMMANDS
+from icprl_lightning.commands.export_data import main as export_main
+from icprl_lightning.commands.import_data import main as import_main
 from icprl_lightning.data.interop import ExportError, export_dataset, import_export
-from icprl_lightning.data.interop.command import main as export_main
 from icprl_lightning.data.interop.minari_format import NAMESPACE, NAMESPACE_METADATA
 from icprl_lightning.data.interop.preference_rows import label_arrays, trl_arrays
 from icprl_lightning.data.recorded import RecordedPreferenceDataModule
@@ -149,7 +149,7 @@ def test_export_refuses_an_existing_out_and_the_cli_lists_the_command(small_rewa
     with pytest.raises(SystemExit):
         export_main([str(small_reward), "--format", "hf", "--out", str(tmp_path / "taken")])
     assert "exists" in capsys.readouterr().err
-    assert SUBCOMMANDS["export-data"][0] == "icprl_lightning.data.interop.command"
+    assert SUBCOMMANDS["export-data"][0] == "icprl_lightning.commands.export_data"
 
 
 # ---- TRL chosen/rejected rows ------------------------------------------------------------------------------

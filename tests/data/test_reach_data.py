@@ -16,7 +16,7 @@ pytest.importorskip("metaworld")
 
 from factories import cli_data_args, config_args, reach_data, reward_contexts, served_fields, step_contexts  # noqa: E402
 
-from icprl_lightning.cli import run_cli  # noqa: E402
+from icprl_lightning.commands import run_cli  # noqa: E402
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 from icprl_lightning.evaluation import rollout_in_context, summarize  # noqa: E402
 from icprl_lightning.families.metaworld_reach import ReachTaskFamily  # noqa: E402

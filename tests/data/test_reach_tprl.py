@@ -19,7 +19,7 @@ pytest.importorskip("metaworld")
 from factories import cli_data_args, config_args, reach_data, served_fields, trajectory_pairs  # noqa: E402
 
 from icprl_lightning import TrajectoryPreferenceContext, load_agent  # noqa: E402
-from icprl_lightning.cli import run_cli  # noqa: E402
+from icprl_lightning.commands import run_cli  # noqa: E402
 from icprl_lightning.contexts import RewardTrajectoryContext  # noqa: E402
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 from icprl_lightning.data.settings.trajectory_pairs import label_trajectory_pairs  # noqa: E402

@@ -15,7 +15,7 @@ import torch
 from factories import TINY_MODEL
 
 from icprl_lightning import StepPreferenceContext, TrajectoryPreferenceContext, load_agent
-from icprl_lightning.cli import main, run_cli
+from icprl_lightning.commands import main, run_cli
 from icprl_lightning.data.importer import import_preferences
 from icprl_lightning.data.recorded import RecordedPreferenceDataModule
 from icprl_lightning.data.store import DatasetError

@@ -17,7 +17,7 @@ from safetensors.torch import load_file, save_file
 
 from icprl_lightning import StepPreferenceContext, TrajectoryPreferenceContext, load_agent
 from icprl_lightning.checkpoints import CHECKSUM_KEY, checksum
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
 from icprl_lightning.evaluation.duels import seed_mean_curves
 from icprl_lightning.hub import (
     CARD,
@@ -154,7 +154,7 @@ def _rewrite(model_dir, edit_config=None, edit_tensors=None):
 def test_a_foreign_class_is_refused(model_dir):
     _rewrite(model_dir, edit_config=lambda c: c.update(method="os.system"))  # its checksums consistent
     with pytest.raises(ValueError, match=rf"{re.escape(str(model_dir / CONFIG))} names class 'os.system', which is "
-                                         "not one of icprl_lightning's methods .*refusing to import it"):
+                                         "not a registered method .*refusing to import it"):
         load_model_dir(model_dir)
 
 

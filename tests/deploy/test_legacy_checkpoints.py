@@ -79,11 +79,11 @@ import torch
 
 from icprl_lightning import StepPreferenceContext, TrajectoryPreferenceContext, load_agent
 from icprl_lightning.checkpoints import FLAT_BACKBONE, checkpoint_for_lightning, hyperparameters, load_raw, verify
-from icprl_lightning.checkpoints import main as checkpoint_main
+from icprl_lightning.commands.checkpoint import main as checkpoint_main
+from icprl_lightning.commands.trainer import CLIError, _verified_sizes_fit
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.models.config import TransformerConfig
-from icprl_lightning.trainer_cli import CLIError, _verified_sizes_fit
 
 LEGACY = Path(__file__).resolve().parents[1] / "fixtures" / "legacy"
 ICPO, ICRG = LEGACY / "icpo_1x8.ckpt", LEGACY / "icrg_1x8.ckpt"

@@ -12,10 +12,10 @@ import pytest
 import torch
 from factories import REPO, save_untrained
 
+from icprl_lightning.commands.evaluate import main
 from icprl_lightning.evaluation import ad_command
 from icprl_lightning.evaluation.ad_command import OPTIMAL, SOURCE, ad_markdown, evaluate_ad, is_ad_payload
 from icprl_lightning.evaluation.ad_rollout import ad_learning_curve, optimal_curve
-from icprl_lightning.evaluation.command import main
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.methods.ad import ADModule
 from icprl_lightning.methods.dpt import DPTModule

@@ -11,7 +11,7 @@ import pytest
 import torch
 from factories import cli_data_args
 
-from icprl_lightning.cli import main, run_cli
+from icprl_lightning.commands import main, run_cli
 from icprl_lightning.evaluation import dit_advantages, dit_weights
 
 REPO = pathlib.Path(__file__).resolve().parents[2]

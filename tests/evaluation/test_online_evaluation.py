@@ -14,7 +14,7 @@ import yaml
 from factories import save_untrained
 
 from icprl_lightning.annotators import BradleyTerryAnnotator
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.evaluation import online_bandit, online_mdp
 from icprl_lightning.evaluation.online_command import evaluate_online
@@ -153,6 +153,25 @@ def test_online_mistakes_are_one_line_naming_the_option(tmp_path, capsys, extra,
     assert info.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("icprl evaluate: error: ") and message in err, err
+
+
+def test_a_checkpoint_of_another_family_is_one_line_naming_the_mismatch(tmp_path, capsys):
+    darkroom = tmp_path / "darkroom.yaml"
+    darkroom.write_text(yaml.safe_dump({"data": {
+        "class_path": "icprl_lightning.data.PreferenceDataModule",
+        "init_args": {"family": {"class_path": "icprl_lightning.families.darkroom.DarkRoomFamily"},
+                      "setting": {"class_path": "icprl_lightning.data.settings.StepPreferences"},
+                      "root_dir": str(tmp_path / "data")}}}))
+    ckpt = _bandit_checkpoint(tmp_path)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as info:
+        main(["evaluate", "online", "--config", str(darkroom), "--ckpt", ckpt, "--episodes", "2"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert f"--ckpt {ckpt} does not fit the data of {darkroom} (DarkRoomFamily): ICPOModule " in err, err
+    assert "has state_dim 0, the data 2" in err, err
+    assert not (tmp_path / "data").exists()  # refused before any data is generated
 
 
 def test_online_help_names_both_kinds_of_family(capsys):

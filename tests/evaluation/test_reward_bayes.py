@@ -10,7 +10,7 @@ import pytest
 import torch
 from factories import darkroom_tprl_config
 
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
 from icprl_lightning.contexts import TrajectoryPreferenceContext
 from icprl_lightning.evaluation import reward_bayes
 from icprl_lightning.families.darkroom.env import step_reward, transition

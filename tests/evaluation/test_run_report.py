@@ -19,8 +19,8 @@ from icprl_lightning import progress
 from icprl_lightning.callbacks.progress import TrainingProgress
 from icprl_lightning.callbacks.run_directory import RUN_DIR_ATTR
 from icprl_lightning.callbacks.run_logs import CSVMetrics, wandb_in_run_directory
-from icprl_lightning.cli import run_cli
-from icprl_lightning.evaluation.run_report import main as report_main
+from icprl_lightning.commands import run_cli
+from icprl_lightning.commands.report import main as report_main
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = [*TINY_DATA, *TINY_MODEL, "--trainer.max_epochs", "2", "--trainer.limit_train_batches", "4",
@@ -154,3 +154,37 @@ def test_report_of_a_bandit_run_shows_the_regret_table_and_lowest_regret_as_best
     assert re.search(r"val/bandit/uniform/icpo/weak_regret\s*│\s*2\s*│\s*0\.3\s*│\s*0\.35 @ step 19 \(epoch 1\)\s*"
                      r"│\s*0\.3\s*│\s*step 9 \(epoch 0\)", printed), printed  # regret: lower is better
     assert (tmp_path / "curves.png").is_file()
+
+
+def test_the_figure_shows_return_per_quality_against_steps_and_seconds_then_losses_never_the_clock(tmp_path):
+    from icprl_lightning.evaluation.run_report import best_point, panels, read_metrics, run_name
+
+    keys = ["time/train_seconds", "train/loss", "val/loss"] + [
+        f"val/darkroom/{q}/{k}" for q in ("high", "low", "medium") for k in ("return", "behavior_return")]
+    rows = ["epoch,step," + ",".join(keys)]
+    for epoch, step in ((0, 9), (1, 19)):
+        rows.append(f"{epoch},{step}," + ",".join(str(1.0 + i + step) for i in range(len(keys))))
+    (tmp_path / "metrics.csv").write_text("\n".join(rows) + "\n")
+    curves = read_metrics(tmp_path / "metrics.csv")
+    shown = panels(curves)
+    assert [(title, axis) for title, axis, _ in shown] == [
+        ("held-out return per context quality", "step"), ("held-out return per context quality", "seconds"),
+        ("losses", "step")]
+    assert list(shown[0][2]) == ["darkroom/low", "darkroom/medium", "darkroom/high"]
+    assert best_point("time/train_seconds", curves["time/train_seconds"]) is None
+    assert best_point("val/loss", curves["val/loss"]).step == 9
+    name = run_name(tmp_path)
+    assert not name.startswith("/") and name.endswith(tmp_path.name)
+    report_main([str(tmp_path)])
+    assert (tmp_path / "curves.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_every_training_config_keeps_a_csv_log_for_icprl_report():
+    import yaml
+
+    from icprl_lightning.commands.trainer import TRAINER_DEFAULTS
+
+    assert TRAINER_DEFAULTS["logger"]  # a W&B logger, beside which CSVMetrics adds csv/metrics.csv
+    for path in sorted((REPO / "configs").rglob("*.yaml")):
+        trainer = (yaml.safe_load(path.read_text()) or {}).get("trainer") or {}
+        assert trainer.get("logger", True) not in (False, None), f"{path}: logger false leaves no metrics.csv"

@@ -18,7 +18,7 @@ import torch
 import yaml
 
 from icprl_lightning import StepPreferenceContext, load_agent
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.families.base import Oracle, TaskFamily
 

@@ -7,7 +7,8 @@ import pytest
 
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.darkroom.env import N_ACTIONS, NOOP, step_reward, transition
-from icprl_lightning.families.darkroom.oracle import calibrate_mixing, optimal_actions, optimal_advantage
+from icprl_lightning.families.darkroom.family import calibrate_mixing
+from icprl_lightning.families.darkroom.oracle import optimal_actions, optimal_advantage
 
 
 def backward_induction(fam: DarkRoomFamily, goal: np.ndarray) -> np.ndarray:

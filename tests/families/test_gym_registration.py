@@ -38,6 +38,35 @@ def test_registering_imports_neither_torch_nor_mujoco_and_is_idempotent():
     assert out.stdout.strip() == "['icprl/DarkRoom-v0', 'icprl/MetaWorldReach-v0'] []"
 
 
+@pytest.mark.parametrize("imports", ["gymnasium as gym, icprl_lightning", "icprl_lightning, gymnasium as gym"])
+def test_importing_the_package_registers_the_ids_without_torch(imports):
+    code = (f"import sys, {imports}\n"
+            "print(sorted(i for i in gym.registry if i.startswith('icprl/')), "
+            "[m for m in ('torch', 'mujoco', 'metaworld', 'lightning') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.strip() == "['icprl/DarkRoom-v0', 'icprl/MetaWorldReach-v0'] []"
+
+
+@pytest.mark.parametrize("env_id", sorted(registration.ENV_IDS))
+def test_every_id_makes_a_valid_env_from_its_defaults_alone(env_id):
+    env = gym.make(env_id)
+    # check_env passes; its only remarks: Reach's unbounded observation Box, as metaworld's own
+    assert all("infinity" in m for m in _check_env_quietly(env)), env_id
+    envs = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point",
+                        **({"num_workers": 0} if "Reach" in env_id else {}))
+    obs, _ = envs.reset(seed=0)
+    assert obs.shape[0] == 2
+    envs.close()
+
+
+def test_the_defaults_are_documented_goals():
+    from icprl_lightning.families.darkroom import DarkRoomFamily
+    from icprl_lightning.families.metaworld_reach.env import GOAL_HIGH, GOAL_LOW
+
+    assert gym.make("icprl/DarkRoom-v0").unwrapped.goal.tolist() == DarkRoomFamily().tasks("test")[0].tolist()
+    assert np.allclose(gym.make("icprl/MetaWorldReach-v0").unwrapped.goals[0], (GOAL_LOW + GOAL_HIGH) / 2)
+
+
 def test_the_module_prefix_form_registers_on_demand():
     env = gym.make("icprl_lightning.families.registration:icprl/DarkRoom-v0", goal=GOAL)
     assert env.spec.id == "icprl/DarkRoom-v0"
@@ -111,9 +140,9 @@ def test_darkroom_sync_and_vector_modes_agree_on_spaces():
 
 
 @pytest.mark.parametrize(("kwargs", "message"), [
-    ({}, "exactly one of goal"),
-    ({"goal": GOAL, "goals": [GOAL, GOAL]}, "exactly one of goal"),
-    ({"goals": [GOAL]}, r"shape \[2, 2\]"),
+    ({"goal": GOAL, "goals": [GOAL, GOAL]}, "one of goal.*not both"),
+    ({"goals": [GOAL]}, r"num_envs is 2 but goals has 1 rows .*pass num_envs=1"),
+    ({"goals": [[1, 2, 3], [1, 2, 3]]}, r"shape \[2, 2\]"),
     ({"goal": [2.5, 1.0]}, "integer cells"),
     ({"goal": [3, 10]}, "cell of the 10x10 grid"),
     ({"goal": GOAL, "num_envs": 0}, "num_envs must be an integer >= 1"),
@@ -167,8 +196,8 @@ def test_reach_vector_refuses_a_visible_goal():
 
 
 @pytest.mark.parametrize(("kwargs", "message"), [
-    ({}, "exactly one of goal"),
-    ({"goals": [REACH_GOAL]}, r"shape \[2, 3\]"),
+    ({"goals": [REACH_GOAL]}, r"num_envs is 2 but goals has 1 rows .*pass num_envs=1"),
+    ({"goals": [REACH_GOAL] * 3}, r"num_envs is 2 but goals has 3 rows .*pass num_envs=3"),
     ({"goal": [0.0, np.nan, 0.2]}, "finite points"),
 ])
 def test_reach_vector_kwargs_are_checked(kwargs, message):

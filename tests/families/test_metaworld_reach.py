@@ -29,12 +29,14 @@ from icprl_lightning.families.metaworld_reach.env import (  # noqa: E402
 from icprl_lightning.families.metaworld_reach.oracle import (  # noqa: E402
     DEFAULT_BT_TEMPERATURE,
     advantage,
-    calibrate_mixing,
     expert_actions,
     expert_q_values,
     metaworld_expert_actions,
-    rollout_returns,
     simulated_q_values,
+)
+from icprl_lightning.families.metaworld_reach.simulation import (  # noqa: E402
+    calibrate_mixing,
+    rollout_returns,
     step_label_agreement,
 )
 

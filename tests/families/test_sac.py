@@ -72,6 +72,25 @@ def test_darkroom_goal_env_passes_check_env_and_matches_the_vector_env():
     assert truncated
 
 
+@pytest.mark.parametrize("action", [5, 9, -1, 2.7, "1", None, True, np.array([1, 2]), np.float32(1.0)])
+def test_darkroom_goal_env_refuses_an_action_outside_its_space(action):
+    env = DarkRoomGoalEnv(DarkRoomFamily(), DarkRoomFamily().test_goals[0])
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action must be an integer move in \[0, 5\)"):
+        env.step(action)
+    for good in (0, 4, np.int64(3), np.array(2)):  # what the space contains is taken
+        env.step(good)
+
+
+@pytest.mark.parametrize("action", [[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0, 0.0], np.full(4, np.inf), 0.5])
+def test_reach_goal_env_refuses_a_non_finite_or_misshapen_action(action):
+    env = ReachGoalEnv(GOALS, horizon=4)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action must be 4 finite numbers"):
+        env.step(action)
+    env.step(np.full(4, 2.0))  # out of range: clipped, as before
+
+
 # --- SAC oracle -------------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -190,7 +209,7 @@ def test_best_checkpoint_is_restored_and_greedy_table_matches_predict():
 
 
 def test_dqn_from_scratch_command_tiny_budget(tmp_path):
-    from icprl_lightning.cli import main
+    from icprl_lightning.commands import main
 
     main(["baseline", "dqn", "--episodes", "3", "--n-goals", "2", "--eval-every", "1", "--eval-episodes", "2",
           "--test-episodes", "3", "--out", str(tmp_path / "dqn.json")])
@@ -208,7 +227,7 @@ def test_dqn_from_scratch_command_tiny_budget(tmp_path):
 @pytest.mark.slow
 def test_sac_oracle_commands_train_then_export_per_task(tmp_path):
     """``icprl oracle train`` on one goal (the paper's per-task variant), then ``icprl oracle export`` of its run."""
-    from icprl_lightning.cli import main
+    from icprl_lightning.commands import main
     from icprl_lightning.families.metaworld_reach.sac_weights import ExportedSAC
 
     out = tmp_path / "o"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from icprl_lightning.cli import main, run_cli
+from icprl_lightning.commands import main, run_cli
 from icprl_lightning.models.config import TransformerConfig
 
 REPO = Path(__file__).resolve().parents[2]

@@ -12,7 +12,7 @@ import yaml
 from factories import config_args, tiny_darkroom_args
 
 from icprl_lightning import load_agent
-from icprl_lightning.cli import main, run_cli
+from icprl_lightning.commands import main, run_cli
 from icprl_lightning.evaluation import diagnose_suite, rollout_in_context, rollout_seeds, summarize
 
 DARKROOM_CONFIGS = ["configs/icpo_darkroom.yaml", "configs/dp2t_darkroom.yaml", "configs/dpt_darkroom.yaml"]
@@ -45,7 +45,7 @@ def test_unknown_key_is_rejected_by_name(tmp_path):
     cfg = yaml.safe_load(Path("configs/icpo_darkroom.yaml").read_text())
     cfg["model"]["init_args"]["lamda"] = 0.5
     bad.write_text(yaml.safe_dump(cfg))
-    proc = subprocess.run([sys.executable, "-m", "icprl_lightning.cli", "fit", "--config", str(bad)],
+    proc = subprocess.run([sys.executable, "-m", "icprl_lightning", "fit", "--config", str(bad)],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode != 0
     assert "lamda" in proc.stderr
@@ -53,7 +53,7 @@ def test_unknown_key_is_rejected_by_name(tmp_path):
 
 @pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier
 def test_print_config_shows_linked_model_and_data():
-    proc = subprocess.run([sys.executable, "-m", "icprl_lightning.cli", "fit", "--config",
+    proc = subprocess.run([sys.executable, "-m", "icprl_lightning", "fit", "--config",
                            "configs/icpo_darkroom.yaml", "--print_config"], capture_output=True, text=True,
                           timeout=120)
     assert proc.returncode == 0, proc.stderr

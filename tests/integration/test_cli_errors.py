@@ -1,5 +1,5 @@
-"""A user's mistake on the ``icprl`` command line is one line on stderr and exit status 2 (``cli.py``,
-``trainer_cli.summarize_parse_error``), with "did you mean" when a close name exists; ``--verbose`` shows the
+"""A user's mistake on the ``icprl`` command line is one line on stderr and exit status 2 (``commands/__init__.py``,
+``commands.trainer.summarize_parse_error``), with "did you mean" when a close name exists; ``--verbose`` shows the
 traceback; ``icprl --help`` answers without importing torch or Lightning."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from icprl_lightning.cli import GROUPS, SUBCOMMANDS, main
+from icprl_lightning.commands import GROUPS, SUBCOMMANDS, main
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = str(REPO / "configs/icpo_darkroom.yaml")
@@ -74,7 +74,7 @@ def test_verbose_shows_the_traceback(tmp_path):
 
 
 def test_help_lists_every_subcommand_without_importing_torch_or_lightning():
-    code = ("import sys; from icprl_lightning.cli import main; main(['--help']); "
+    code = ("import sys; from icprl_lightning.commands import main; main(['--help']); "
             "print('heavy:', sorted(m for m in ('torch', 'lightning', 'numpy') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.splitlines()[-1] == "heavy: []", out

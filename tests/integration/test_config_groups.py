@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from icprl_lightning.cli import run_cli
-from icprl_lightning.trainer_cli import TRAINER_DEFAULTS
+from icprl_lightning.commands import run_cli
+from icprl_lightning.commands.trainer import TRAINER_DEFAULTS
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = str(REPO / "configs/icpo_darkroom.yaml")

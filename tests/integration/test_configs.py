@@ -23,7 +23,7 @@ import yaml
 from jsonargparse import Namespace
 from lightning.pytorch.callbacks import EarlyStopping
 
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 BASES = sorted(p.relative_to(REPO).as_posix() for p in REPO.glob("configs/*.yaml"))

@@ -64,7 +64,7 @@ def test_two_processes_shard_the_epoch_and_write_one_run(tmp_path):
     record_dir = tmp_path / "ranks"
     record_dir.mkdir()
     recorder = {"class_path": "test_ddp.RowRecorder", "init_args": {"out_dir": str(record_dir)}}
-    command = [sys.executable, "-m", "icprl_lightning.cli", "fit", "--config", str(REPO / "configs/icpo_darkroom.yaml"),
+    command = [sys.executable, "-m", "icprl_lightning", "fit", "--config", str(REPO / "configs/icpo_darkroom.yaml"),
                "--trainer.accelerator", "cpu", "--trainer.strategy", "ddp", "--trainer.devices", "2",
                "--trainer.max_epochs", "2", "--trainer.enable_progress_bar", "false",
                "--trainer.default_root_dir", str(tmp_path),

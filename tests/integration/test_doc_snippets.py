@@ -91,7 +91,7 @@ def blocks(document: Path) -> list[Block]:
 
 def _bandit_checkpoint(workdir: Path) -> dict[str, str]:
     """A bandit ICPO checkpoint trained for two steps on a tiny dataset: ``CHECKPOINT``."""
-    from icprl_lightning.cli import run_cli
+    from icprl_lightning.commands import run_cli
 
     root = workdir / "_setup_bandit"
     data = cli_data_args("bandit", root_dir=str(root / "data"), n_train_problems=8, n_val_problems=2,

@@ -20,12 +20,12 @@ from factories import REPO, save_untrained
 from jsonargparse import Namespace
 
 from icprl_lightning.checkpoints import SEAL_KEY, seal
+from icprl_lightning.commands.reproduce import main
 from icprl_lightning.reproduce import (
     Run,
     TableError,
     fit_command,
     load_table,
-    main,
     slug,
     stages,
     table_names,
@@ -67,7 +67,7 @@ def _matches(resolved, written: str) -> bool:
 @pytest.fixture(scope="module")
 def parser(tmp_path_factory):
     """The LightningCLI's parser of ``icprl fit`` (built once), and the runs it has parsed."""
-    from icprl_lightning.cli import run_cli
+    from icprl_lightning.commands import run_cli
 
     root = tmp_path_factory.mktemp("parser")
     cli = run_cli(["--config", str(REPO / "configs/icpo_darkroom.yaml"), "--trainer.default_root_dir", str(root)],
@@ -105,7 +105,7 @@ def built() -> dict[tuple, str | None]:
 def test_every_run_of_an_experiment_instantiates(name, built, monkeypatch, tmp_path_factory):
     """Each run's fit command builds its trainer, model and DataModule (``run=False``: no data generated); a later
     stage is built on the earlier stages it needs, saved untrained as their fits would save them."""
-    from icprl_lightning.cli import run_cli
+    from icprl_lightning.commands import run_cli
 
     monkeypatch.chdir(REPO)
     table = load_table(name, EXPERIMENTS)

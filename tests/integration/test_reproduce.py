@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 from factories import REPO, tiny_darkroom_args
 
+from icprl_lightning.commands.reproduce import main
 from icprl_lightning.reproduce import (
     Evaluation,
     OnlineEvaluation,
@@ -19,7 +20,6 @@ from icprl_lightning.reproduce import (
     fit_inputs,
     load_table,
     load_tables,
-    main,
     needed_runs,
     reproduce,
     slug,
@@ -294,7 +294,7 @@ def test_final_epoch_means_average_the_last_epochs_training_metrics(tmp_path):
 
 
 def test_redraw_draws_every_figure_from_the_outputs_alone(tables, tmp_path):
-    from icprl_lightning.reproduce.runner import main
+    from icprl_lightning.commands.reproduce import main
 
     table = tables["darkroom_dit_steps"]
     with pytest.raises(FileNotFoundError, match="run `icprl reproduce darkroom_dit_steps` first"):

@@ -25,7 +25,7 @@ import torch
 import yaml
 from factories import TINY_DATA, TINY_MODEL
 
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 LOGGERS = {
@@ -138,7 +138,7 @@ def _resume_config(tmp_path: Path) -> Path:
 
 
 def _fit_command(config: Path, data: Path, root: Path, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "icprl_lightning.cli", "fit", "--config", str(config), "--data.init_args.root_dir",
+    return [sys.executable, "-m", "icprl_lightning", "fit", "--config", str(config), "--data.init_args.root_dir",
             str(data), *TINY_DATA, *TINY_MODEL, "--trainer.default_root_dir", str(root), *extra]
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import yaml
 
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 # make smoke measured at 250 optimizer steps (2 epochs of 4000 contexts): ~90 CPU-seconds in all

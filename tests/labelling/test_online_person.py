@@ -13,7 +13,7 @@ import torch
 import yaml
 from factories import save_untrained
 
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.data.settings.trajectory_pairs import label_trajectory_pairs
 from icprl_lightning.evaluation import online_mdp

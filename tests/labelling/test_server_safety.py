@@ -139,7 +139,7 @@ def test_wrong_methods_are_refused(served):
 
 
 def test_command_mistakes_are_one_line(tmp_path, capsys):
-    from icprl_lightning.cli import main
+    from icprl_lightning.commands import main
 
     for argv, message in ((["--session", str(tmp_path / "new")], "--view must be one of"),
                           (["--session", str(tmp_path / "new"), "--view", "darkroom_steps", "--pairs", "0"],

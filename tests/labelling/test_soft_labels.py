@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 from icprl_lightning.contexts import ActionSpec, StepPreferenceContext, TrajectoryPreferenceContext
 from icprl_lightning.data.recorded import RecordedPreferenceDataModule
 from icprl_lightning.labelling.export import export

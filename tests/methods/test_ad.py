@@ -9,8 +9,7 @@ import torch
 from factories import REPO, save_untrained
 
 from icprl_lightning import load_agent
-from icprl_lightning.checkpoints import METHODS
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 from icprl_lightning.contexts import RewardTrajectoryContext
 from icprl_lightning.data.learning_histories import LearningHistoryDataModule
 from icprl_lightning.data.settings import RewardTrajectories
@@ -20,6 +19,7 @@ from icprl_lightning.families.darkroom.env import step_reward, transition
 from icprl_lightning.families.darkroom.learning_histories import QLearningHistories
 from icprl_lightning.methods.ad import ADModule, HistoryAgent
 from icprl_lightning.methods.dpt import DPTModule
+from icprl_lightning.registry import BUILTIN_METHODS
 from icprl_lightning.validation import HyperparameterError, check_pairing
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -213,7 +213,7 @@ def test_the_learning_curve_has_one_return_per_goal_and_episode():
 
 
 def test_a_checkpoint_loads_as_a_history_agent(tmp_path):
-    assert "icprl_lightning.methods.ad.ADModule" in METHODS
+    assert "icprl_lightning.methods.ad.ADModule" in BUILTIN_METHODS
     model = _model()
     agent = load_agent(save_untrained(model, tmp_path / "ad.ckpt"), seed=0)
     assert isinstance(agent, HistoryAgent) and not agent.greedy and agent.context_kind == "reward_trajectory"

@@ -12,7 +12,7 @@ import torch
 from factories import REPO, save_untrained
 
 from icprl_lightning import load_agent
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.data import PreferenceDataModule
 from icprl_lightning.data.duel_histories import DuelHistoryDataModule

@@ -14,7 +14,7 @@ from factories import bandit_data, cli_data_args, config_args  # noqa: E402
 from torch import Tensor, nn
 
 from icprl_lightning.callbacks.bandit_regret import BanditRegretCallback
-from icprl_lightning.cli import main, run_cli
+from icprl_lightning.commands import main, run_cli
 from icprl_lightning.contexts import ActionSpec, StepPreferenceContext
 from icprl_lightning.data import PreferenceDataModule  # noqa: E402
 from icprl_lightning.data.settings.bandit_duels import EVAL_SOURCES  # noqa: E402

@@ -15,7 +15,7 @@ import torch
 from factories import darkroom_data, darkroom_tprl_config, save_untrained
 
 from icprl_lightning.checkpoints import load_module
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
 from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext
 from icprl_lightning.data import PreferenceDataModule
 from icprl_lightning.evaluation import reward_quality

@@ -9,7 +9,7 @@ import torch
 from factories import TPRL_TINY, cli_data_args, darkroom_data  # noqa: E402
 
 from icprl_lightning import RewardTrajectoryContext, TrajectoryPreferenceContext, load_agent
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 from icprl_lightning.methods.dit import DITModule, swap_roles, unexplained_variance
 from icprl_lightning.methods.dpt import DP2TModule
 from icprl_lightning.methods.icrg import ICRGAgent, ICRGModule

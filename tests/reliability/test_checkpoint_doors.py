@@ -1,5 +1,5 @@
 """Every way of giving ``icprl fit|validate|test|predict`` a checkpoint goes through one check, on the parsed
-config (``trainer_cli.ICPRLCLI._parse_ckpt_path`` -> ``checkpoints.checkpoint_for_lightning``), and the seal
+config (``commands.trainer.ICPRLCLI._parse_ckpt_path`` -> ``checkpoints.checkpoint_for_lightning``), and the seal
 covers every part a resume restores (``checkpoints.seal``).
 
 A payload pickle writes a marker file when unpickled the unsafe way; whichever way its path is spelled, the
@@ -19,7 +19,7 @@ import torch
 from factories import tiny_darkroom_args
 
 from icprl_lightning.checkpoints import CHECKSUM_KEY, CLASS_KEY, SEAL_KEY, checksum, seal
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.models.config import TransformerConfig
 

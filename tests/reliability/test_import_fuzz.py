@@ -27,7 +27,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from icprl_lightning.cli import main
+from icprl_lightning.commands import main
 from icprl_lightning.data import store
 from icprl_lightning.data.importer import import_preferences
 from icprl_lightning.data.recorded import RecordedPreferenceDataModule

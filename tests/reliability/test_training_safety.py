@@ -32,7 +32,7 @@ from lightning.pytorch.loggers import CSVLogger
 from icprl_lightning.callbacks.atomic_io import AtomicCheckpointIO
 from icprl_lightning.callbacks.finite_check import NonFiniteError
 from icprl_lightning.callbacks.run_directory import unique_logger_versions
-from icprl_lightning.cli import main, run_cli
+from icprl_lightning.commands import main, run_cli
 from icprl_lightning.methods.icpo import ICPOModule
 
 REPO = Path(__file__).resolve().parents[2]
@@ -228,7 +228,7 @@ def test_the_temporary_file_is_renamed_within_the_target_directory(tmp_path, mon
 @pytest.mark.slow  # a subprocess fit (imports, data generation, one epoch) before the signal: ~20-40 s here
 def test_sigterm_ends_the_fit_with_status_143_and_a_loadable_last_ckpt(data, tmp_path):
     config, out = _plain_config(tmp_path, max_epochs=1000), tmp_path / "out"
-    command = [sys.executable, "-m", "icprl_lightning.cli", "fit", "--config", str(config),
+    command = [sys.executable, "-m", "icprl_lightning", "fit", "--config", str(config),
                "--data.init_args.root_dir", str(data), *TINY, "--trainer.limit_train_batches", "50",
                "--trainer.limit_val_batches", "1", "--trainer.enable_progress_bar", "false",
                "--trainer.logger", "false", "--trainer.default_root_dir", str(out)]

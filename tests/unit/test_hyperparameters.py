@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from icprl_lightning.cli import run_cli
+from icprl_lightning.commands import run_cli
 from icprl_lightning.data import PreferenceDataModule
 from icprl_lightning.data.settings import (
     BanditDuels,
@@ -119,6 +119,7 @@ SETTING_CASES = (
     [(s, k, v) for s in MDP_SETTINGS for k, v in MDP_CASES]
     + [("StepPreferences", "bt_temperature", 0.0), ("StepPreferences", "bt_temperature", -1.0),
        ("StepPreferences", "first_policy", "best"), ("StepPreferences", "next_state_follows", "random"),
+       ("StepPreferences", "second_policy", "optimal"),
        ("TrajectoryPairs", "bt_temperature", 0.0), ("TrajectoryPairs", "pretraining_target", 0.0),
        ("TrajectoryPairs", "pretraining_target", 1.0), ("RewardTrajectories", "bt_temperature", -1.0)]
 )

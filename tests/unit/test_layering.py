@@ -22,23 +22,23 @@ PACKAGE = REPO / "icprl_lightning"
 
 # lowest first; a module's layer is the first entry its dotted name starts with
 LAYERS = [
-    ("contexts", "preferences", "io", "metrics", "validation",   # ground: shared vocabulary, argument checks,
-     "progress", "data_contract", "samples"),                     # progress lines, what a DataModule serves,
-                                                                  # typed training samples
+    ("contexts", "preferences", "io", "untrusted", "metrics", "validation",  # ground: shared vocabulary, checks,
+     "progress", "data_contract", "samples", "registry"),         # progress lines, what a DataModule serves,
+                                                                  # typed training samples, the registries
     ("sb3",),                                       # SB3 agents evaluated while they train (oracle, baselines)
     ("families",),                                  # task families, their envs and oracles
     ("annotators",),                                # who labels a pair (sees the oracle's utilities)
     ("data",),                                      # settings (generators), store, DataModules
     ("models",),                                    # plain nn.Modules
-    ("deploy", "checkpoints", "online", "hub"),     # Agent / load_agent; safe checkpoint files (methods by an
-                                                    # allow-list of names, imported by importlib, not statically)
+    ("deploy", "checkpoints", "online", "hub"),     # Agent / load_agent; safe checkpoint files (methods by the
+                                                    # registry's names, imported only when registered)
     ("methods",),                                   # LightningModules
     ("labelling",),                                 # the labelling page's server, answer log, export, online page
     ("evaluation",),                                # rollouts and duels through the Agent
     ("callbacks",),
     ("baselines",),                                 # SB3 from scratch
-    ("cli", "trainer_cli", "reproduce", "__init__",  # the commands (reproduce runs `icprl fit` and `evaluate`)
-     "commands"),
+    ("commands", "reproduce", "__init__",           # the commands room (reproduce runs `icprl fit` and `evaluate`),
+     "__main__"),                                   # and `python -m icprl_lightning`, the same front door
 ]
 REWARD_FREE = ("models", "methods", "deploy", "online")
 FORBIDDEN_FOR_REWARD_FREE = ("families", "annotators", "data")
@@ -87,6 +87,31 @@ def test_no_module_imports_a_higher_layer(module, path):
     own = _layer(module)
     higher = sorted(dep for dep in _imports(path) if _layer(dep) > own)
     assert not higher, f"icprl_lightning.{module} (layer {own}) imports higher layers: {higher}"
+
+
+def _command_parts(path: Path) -> list[str]:
+    """What makes a file a command: a top-level ``main``, an ``if __name__ == "__main__"`` block, argparse."""
+    tree = ast.parse(path.read_text())
+    found = [f"def {n.name}" for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "main"]
+    found += ["__main__ block" for n in tree.body if isinstance(n, ast.If) and "__main__" in ast.unparse(n.test)]
+    found += ["import argparse" for n in ast.walk(tree) if isinstance(n, ast.Import | ast.ImportFrom)
+              and "argparse" in ([a.name for a in n.names] if isinstance(n, ast.Import) else [n.module])]
+    return found
+
+
+@pytest.mark.parametrize(("module", "path"), [(m, p) for m, p in MODULES if not m.startswith("commands")],
+                         ids=[m for m, _ in MODULES if not m.startswith("commands")])
+def test_library_modules_hold_no_command(module, path):
+    """Every program lives in icprl_lightning/commands/ behind `icprl`: no main(), no `python -m` back door, no
+    argparse in a library module."""
+    assert not _command_parts(path), f"icprl_lightning.{module} holds {_command_parts(path)}: commands/ holds these"
+
+
+def test_the_command_check_sees_main_back_doors_and_argparse(tmp_path):
+    probe = tmp_path / "probe.py"
+    probe.write_text("def f():\n    import argparse\n\ndef main():\n    pass\n\nif __name__ == '__main__':\n"
+                     "    main()\n")
+    assert _command_parts(probe) == ["def main", "__main__ block", "import argparse"]
 
 
 @pytest.mark.parametrize(("module", "path"), [(m, p) for m, p in MODULES if m.split(".")[0] in REWARD_FREE],

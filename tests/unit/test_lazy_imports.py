@@ -43,12 +43,12 @@ def test_an_unknown_name_is_an_attribute_error():
 @pytest.mark.parametrize("group", ["oracle", "baseline", "analyze"])
 def test_a_group_lists_its_verbs_without_importing_torch(group):
     """``icprl oracle --help`` (and every group's) answers from ``cli.GROUPS`` alone, as ``icprl --help`` does."""
-    code = (f"import sys; from icprl_lightning.cli import main; main([{group!r}, '--help']); "
+    code = (f"import sys; from icprl_lightning.commands import main; main([{group!r}, '--help']); "
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True).stdout
     lines = out.splitlines()
     assert lines[-1] == "False", out
-    from icprl_lightning.cli import GROUPS
+    from icprl_lightning.commands import GROUPS
 
     for verb in GROUPS[group]:
         assert any(line.startswith(f"  {verb} ") for line in lines), (verb, out)

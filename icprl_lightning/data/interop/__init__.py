@@ -4,7 +4,8 @@
 * ``minari_format.py``: reward contexts as Minari episodes (other kinds are refused, naming the formats that fit).
 * ``provenance.py``: the manifest each export carries, and the byte-for-value check that rebuilds the dataset.
 * ``preference_rows.py``: TRL chosen/rejected rows and imitation/B-Pref segment-pair label arrays as contexts.
-* ``command.py``: ``icprl export-data``. ``icprl import --format`` (``data/importer.py``) reads them back.
+* ``icprl export-data`` (``commands/export_data.py``) writes them; ``icprl import --format`` (``data/importer.py``)
+  reads them back.
 
 ``docs/data_formats.md`` maps every field of every format.
 """

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from icprl_lightning.data.store import SCHEMA_VERSION, StoredDataset, write_dataset
+from icprl_lightning.untrusted import UntrustedFileError, parse_json
 
 KEY = "icprl"  # the metadata key (Parquet, Minari) or JSON object (HF description) that holds the provenance
 EXPORT_VERSION = 1
@@ -47,9 +48,9 @@ def parse(text: str | bytes | None, where: str) -> dict[str, Any]:
         raise ExportError(f"{where} carries no icprl provenance (no {KEY!r} metadata): it is not an export of "
                           "`icprl export-data`; import foreign preference rows with --format trl or --format bpref")
     try:
-        found = json.loads(text)
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ExportError(f"{where}: its {KEY!r} metadata is not JSON ({e}); it is corrupt") from None
+        found = parse_json(text, f"{where}: its {KEY!r} metadata")
+    except UntrustedFileError as e:
+        raise ExportError(f"{e}; it is corrupt") from None
     if not isinstance(found, dict) or not isinstance(found.get("manifest"), dict):
         raise ExportError(f"{where}: its {KEY!r} metadata has no manifest object; it is not an icprl export")
     if found.get("export_version") != EXPORT_VERSION:

@@ -9,8 +9,12 @@ utility (A* up to a per-state constant), eq. (i-prl-pref):
 The knobs are the paper's choices made explicit:
 
 * ``first_policy``: the policy of one side of every pair — ``"uniform"`` (the paper's DarkRoom recipe)
-  or a calibrated policy's name (``"low"``, Meta-World's 20% policy); the other side is the context's
-  own quality (training rows: ``train_policy``);
+  or a calibrated policy's name (``"low"``, Meta-World's 20% policy);
+* ``second_policy``: the other side — ``"behavior"``, the context's own quality (training rows:
+  ``train_policy``; the paper's), or ``"uniform"``. With the paper's choice the *unlabeled* pairs point to
+  the goal (one side is optimal with probability p); with both sides uniform and ``state_source: uniform``
+  nothing in a context but its labels depends on the task: the *label-only* recipe
+  (``configs/overlays/label_only.yaml``; ``icprl analyze label-ceiling`` measures what each part holds);
 * ``annotator``: who labels the pairs (``annotators/``: B-Pref's scripted teachers, a function, an
   HTTP endpoint, a person); by default the Bradley–Terry oracle above at ``bt_temperature`` (paper: 1;
   Meta-World's per-step differences need ≈ 0.02). Its EQUAL and SKIP answers are stored as fair coins
@@ -23,7 +27,8 @@ The knobs are the paper's choices made explicit:
 * ``state_source``: ``"rollout"`` (the states of that trajectory) or ``"uniform"`` (every state drawn
   independently over the state space, as DPT's own DarkRoom data; ``next_state_follows`` then only
   decides the reported next state). With states that carry no task information the labels are a
-  model's only signal: the *label-informative* recipe.
+  model's only signal about the states, but the pairs still carry the behavior policy's unless
+  ``second_policy`` is ``"uniform"``.
 
 The context arrays are ``states`` [N, H, S] float32, ``actions`` / ``alt_actions`` (the two slots),
 ``preferred`` [N, H] uint8 (1 = ``actions`` won), plus the oracle's query labels for DPT/DP²T.
@@ -51,6 +56,7 @@ from icprl_lightning.preferences import AgreementTally
 from icprl_lightning.validation import check_choice
 
 FOLLOW = ("preferred", "rejected", "behavior", "first")
+SECOND_POLICIES = ("behavior", "uniform")
 
 
 class StepPreferences(MDPSetting):
@@ -60,13 +66,14 @@ class StepPreferences(MDPSetting):
 
     def __init__(self, first_policy: str = "uniform", bt_temperature: float = 1.0,
                  next_state_follows: str = "preferred", state_source: str = "rollout",
-                 annotator: Annotator | None = None, **kwargs: Any) -> None:
+                 annotator: Annotator | None = None, second_policy: str = "behavior", **kwargs: Any) -> None:
         super().__init__(**kwargs)
         owner = type(self).__name__
         check_choice(owner, "first_policy", first_policy, ("uniform", *self.policy_names()))
         check_choice(owner, "next_state_follows", next_state_follows, FOLLOW)
         self.annotator = choose_annotator(owner, annotator, bt_temperature)
         self.state_source = check_choice(owner, "state_source", state_source, STATE_SOURCES)
+        self.second_policy = check_choice(owner, "second_policy", second_policy, SECOND_POLICIES)
         self.first_policy = first_policy
         self.next_state_follows = next_state_follows
 
@@ -77,7 +84,9 @@ class StepPreferences(MDPSetting):
 
     def knobs(self) -> dict[str, Any]:
         return {"first_policy": self.first_policy, **annotator_knobs(self.annotator),
-                "next_state_follows": self.next_state_follows, "state_source": self.state_source}
+                "next_state_follows": self.next_state_follows, "state_source": self.state_source,
+                # recorded only when set, so the paper's recipe keeps its config (and its dataset's directory)
+                **({} if self.second_policy == "behavior" else {"second_policy": self.second_policy})}
 
     def annotation(self) -> dict[str, Any]:
         return {"annotator": self.annotator.config()}
@@ -105,7 +114,8 @@ class StepPreferences(MDPSetting):
                     state = roll.oracle_state()
                     first = (oracle.uniform_actions(state, rng) if first_p is None
                              else oracle.behavior_actions(state, np.full(m, first_p), rng))
-                    second = oracle.behavior_actions(state, second_p[rows], rng)
+                    second = (oracle.uniform_actions(state, rng) if self.second_policy == "uniform"
+                              else oracle.behavior_actions(state, second_p[rows], rng))
                     swap = _column(rng.random(m) < 0.5, first.ndim)
                     both = np.stack([np.where(swap, second, first), np.where(swap, first, second)])
                     u = oracle.utility(state, both)  # [2, m]

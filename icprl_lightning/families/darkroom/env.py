@@ -14,19 +14,26 @@ environments). Observations are the agent's (x, y) cell as float32; the goal is 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple, Protocol
 
 import gymnasium as gym
 import numpy as np
-
-if TYPE_CHECKING:
-    from icprl_lightning.families.darkroom.family import DarkRoomFamily
 
 # up, down, left, right, no-op. int8: ``transition`` gathers one move per candidate action, [2, N, 2] moves
 # per generation step (2.5 MB as int64 at N = 80,000, 320 kB as int8); s + move is still int64
 MOVES = np.array([[0, 1], [0, -1], [-1, 0], [1, 0], [0, 0]], dtype=np.int8)
 NOOP = 4
 N_ACTIONS = len(MOVES)
+
+
+class RoomRules(Protocol):
+    """What the env and the closed-form A* read of a room (``DarkRoomFamily`` is one)."""
+
+    size: int
+    horizon: int
+    terminate_on_goal: bool
+
+    def sample_starts(self, goals: np.ndarray, rng: np.random.Generator) -> np.ndarray: ...
 
 
 def transition(states: np.ndarray, actions: np.ndarray, size: int) -> np.ndarray:
@@ -62,7 +69,7 @@ class DarkRoomVectorEnv(gym.vector.VectorEnv):
     # No autoreset: the batch shares one clock, every episode ends at the horizon, and reset() restarts all.
     metadata = {"autoreset_mode": gym.vector.AutoresetMode.DISABLED}
 
-    def __init__(self, family: DarkRoomFamily, goals: np.ndarray) -> None:
+    def __init__(self, family: RoomRules, goals: np.ndarray) -> None:
         goals = np.asarray(goals, dtype=np.int64)
         if goals.ndim != 2 or goals.shape[1] != 2:
             raise ValueError(f"goals must have shape [B, 2], got {list(goals.shape)}")

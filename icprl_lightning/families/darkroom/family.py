@@ -20,10 +20,11 @@ import numpy as np
 
 from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.families.base import TaskFamily
+from icprl_lightning.families.calibration import invert_quality_curve
 from icprl_lightning.families.darkroom.env import N_ACTIONS, DarkRoomState, DarkRoomVectorEnv, step_reward, transition
-from icprl_lightning.families.darkroom.oracle import DarkRoomOracle, calibrate_mixing, rollout_returns
+from icprl_lightning.families.darkroom.oracle import DarkRoomOracle, optimal_value
 from icprl_lightning.metrics import mean_sem, per_task_mean
-from icprl_lightning.validation import HyperparameterError, check_int
+from icprl_lightning.validation import HyperparameterError, check_bool, check_int
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,7 @@ class DarkRoomFamily(TaskFamily):
         check_int("DarkRoomFamily", "horizon", self.horizon, 1)
         check_int("DarkRoomFamily", "n_train_tasks", self.n_train_tasks, 1)
         check_int("DarkRoomFamily", "n_test_tasks", self.n_test_tasks, 1)
+        check_bool("DarkRoomFamily", "terminate_on_goal", self.terminate_on_goal)
         if self.n_train_tasks + self.n_test_tasks > self.size**2:
             raise HyperparameterError(
                 f"DarkRoomFamily: n_train_tasks + n_test_tasks must be <= size**2 = {self.size**2}: "
@@ -106,7 +108,7 @@ class DarkRoomFamily(TaskFamily):
         return [(q,) for q in qualities]
 
     def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
-        """Mixing level per target share of the optimal return R(π_p) / R* (``oracle.calibrate_mixing``), with
+        """Mixing level per target share of the optimal return R(π_p) / R* (``calibrate_mixing``), with
         ``episodes`` per training goal on a grid of 51 levels.
 
         An exception to the shared calibration (``families/calibration.py``), for one reason: R* is exact here,
@@ -195,3 +197,41 @@ class IndependentStates(ContinuingRollouts):
         reward = step_reward(nxt, self.goals)
         self.states, self.t = self._draw(), self.t + 1
         return nxt.astype(np.float32), reward
+
+
+def rollout_returns(family: DarkRoomFamily, goals: np.ndarray, p_optimal: np.ndarray,
+                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Returns of the mixed policy with per-episode p, and the optimal return from the same starts."""
+    env = family.make_env(goals)
+    obs, _ = env.reset(seed=int(rng.integers(2**31)))
+    optimal = optimal_value(env.states, goals, family.horizon, family.terminate_on_goal)
+    total = np.zeros(len(goals), dtype=np.float64)
+    for _ in range(family.horizon):
+        a = family.oracle.behavior_actions(env.oracle_state(), p_optimal, rng)
+        _, r, _, _, _ = env.step(a)
+        total += r
+    return total, optimal.astype(np.float64)
+
+
+def calibrate_mixing(family: DarkRoomFamily, targets: dict[str, float], episodes_per_goal: int = 25,
+                     seed: int = 0, grid: int = 51) -> dict[str, dict[str, float]]:
+    """Find p per quality so the mixed policy earns ``target`` × optimal return on the training goals.
+
+    Simulates every p of a grid on all training goals at once, makes the return-ratio curve monotone,
+    inverts it by interpolation, then re-simulates at the chosen p to report the achieved ratio.
+    """
+    rng = np.random.default_rng(seed)
+    goals = family.train_goals
+    ps = np.linspace(0.0, 1.0, grid)
+    rep_goals = np.tile(np.repeat(goals, episodes_per_goal, axis=0), (grid, 1))
+    rep_p = np.repeat(ps, len(goals) * episodes_per_goal)
+    ret, opt = rollout_returns(family, rep_goals, rep_p, rng)
+    ratio = (ret.reshape(grid, -1).mean(1) / opt.reshape(grid, -1).mean(1))
+    chosen = invert_quality_curve(ps, ratio, targets)
+    out: dict[str, dict[str, float]] = {}
+    for name, p in chosen.items():
+        check_goals = np.repeat(goals, episodes_per_goal, axis=0)
+        r, o = rollout_returns(family, check_goals, np.full(len(check_goals), p), rng)
+        out[name] = {"target": float(targets[name]), "mixing": p, "achieved": float(r.mean() / o.mean()),
+                     "mean_return": float(r.mean()), "optimal_return": float(o.mean())}
+    return out

@@ -20,6 +20,7 @@ import numpy as np
 
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.darkroom.env import N_ACTIONS, DarkRoomVectorEnv, step_reward, transition
+from icprl_lightning.families.registration import check_num_envs
 
 
 class DarkRoomGoalEnv(gym.Env):
@@ -47,6 +48,9 @@ class DarkRoomGoalEnv(gym.Env):
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self.t >= self.family.horizon:
             raise RuntimeError("episode is over (horizon reached or never reset): call reset()")
+        if isinstance(action, bool | np.bool_) or not self.action_space.contains(action):
+            raise ValueError(f"action must be an integer move in [0, {self.action_space.n}) (stay, up, down, left, "
+                             f"right), got {action!r}")
         self.state = transition(self.state, np.asarray(action, dtype=np.int64), self.family.size)
         reward = float(step_reward(self.state, self.goal))
         self.t += 1
@@ -55,8 +59,10 @@ class DarkRoomGoalEnv(gym.Env):
                 {"success": reward > 0})
 
 
-def darkroom_env(goal: np.ndarray, horizon: int = 100, terminate_on_goal: bool = False) -> DarkRoomGoalEnv:
-    """``gymnasium.make("icprl/DarkRoom-v0", goal=[x, y])``: one task of the paper's 10×10 DarkRoom."""
+def darkroom_env(goal: np.ndarray | None = None, horizon: int = 100, terminate_on_goal: bool = False
+                 ) -> DarkRoomGoalEnv:
+    """``gymnasium.make("icprl/DarkRoom-v0", goal=[x, y])``: one task of the paper's 10×10 DarkRoom; without a
+    goal, the family's first held-out goal (``DarkRoomFamily().tasks("test")[0]``)."""
     family = DarkRoomFamily(horizon=horizon, terminate_on_goal=terminate_on_goal)
     return DarkRoomGoalEnv(family, _batch_of_cells(family, 1, goal, None)[0])
 
@@ -66,7 +72,7 @@ def darkroom_vector_env(num_envs: int = 1, goal: np.ndarray | None = None, goals
     """``gymnasium.make_vec("icprl/DarkRoom-v0", num_envs=N, goal=[x, y])``: N episodes as one batched env.
 
     ``goal`` [2] gives every episode the same task (what ``make_vec(..., vectorization_mode="sync")`` builds
-    from the same kwargs); ``goals`` [N, 2] gives each its own.
+    from the same kwargs); ``goals`` [N, 2] gives each its own; neither: the first held-out goal.
     """
     family = DarkRoomFamily(horizon=horizon, terminate_on_goal=terminate_on_goal)
     return DarkRoomVectorEnv(family, _batch_of_cells(family, num_envs, goal, goals))
@@ -74,12 +80,14 @@ def darkroom_vector_env(num_envs: int = 1, goal: np.ndarray | None = None, goals
 
 def _batch_of_cells(family: DarkRoomFamily, num_envs: int, goal: np.ndarray | None,
                     goals: np.ndarray | None) -> np.ndarray:
-    """The [num_envs, 2] goal cells from exactly one of ``goal`` [2] and ``goals`` [num_envs, 2]."""
-    if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
-        raise ValueError(f"icprl/DarkRoom-v0: num_envs must be an integer >= 1, got {num_envs!r}")
-    if (goal is None) == (goals is None):
-        raise ValueError("icprl/DarkRoom-v0: pass exactly one of goal=[x, y] (every env) and "
-                         f"goals=[[x, y], ...] (one per env, {num_envs} rows)")
+    """The [num_envs, 2] goal cells from at most one of ``goal`` [2] and ``goals`` [num_envs, 2] (neither: the
+    family's first held-out goal, the default of ``darkroom_env``)."""
+    check_num_envs("icprl/DarkRoom-v0", num_envs, goals)
+    if goal is not None and goals is not None:
+        raise ValueError("icprl/DarkRoom-v0: pass one of goal=[x, y] (every env) and "
+                         f"goals=[[x, y], ...] (one per env, {num_envs} rows), not both")
+    if goal is None and goals is None:
+        goal = family.tasks("test")[0]
     cells = np.tile(np.asarray(goal), (num_envs, 1)) if goals is None else np.asarray(goals)
     if cells.shape != (num_envs, 2) or not np.issubdtype(cells.dtype, np.integer):
         raise ValueError(f"icprl/DarkRoom-v0: goals must be integer cells of shape [{num_envs}, 2], "

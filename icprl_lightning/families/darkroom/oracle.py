@@ -19,17 +19,10 @@ otherwise a uniformly random one. p is calibrated by simulation so the policy ea
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from icprl_lightning.families.base import Oracle
-from icprl_lightning.families.calibration import invert_quality_curve
-from icprl_lightning.families.darkroom.env import N_ACTIONS, NOOP, DarkRoomState, step_reward, transition
-
-if TYPE_CHECKING:
-    from icprl_lightning.families.darkroom.family import DarkRoomFamily
-
+from icprl_lightning.families.darkroom.env import N_ACTIONS, NOOP, DarkRoomState, RoomRules, step_reward, transition
 
 # OPTIMAL_BY_SIGN[3 · sign(dx) + sign(dy)] (negative codes index from the end): the action that closes
 # the x gap first, then the y gap, then stays (NOOP on the goal). One lookup instead of a chain of
@@ -57,7 +50,7 @@ def optimal_value(states: np.ndarray, goals: np.ndarray, steps_left: np.ndarray 
 
 
 def optimal_advantage(states: np.ndarray, actions: np.ndarray, goals: np.ndarray, steps_left: np.ndarray | int,
-                      family: DarkRoomFamily) -> np.ndarray:
+                      family: RoomRules) -> np.ndarray:
     """A*_k(s, a) = r(s, a) + V*_{k−1}(s') − V*_k(s), vectorized over any batch shape."""
     nxt = transition(states, actions, family.size)
     r = step_reward(nxt, goals)
@@ -68,48 +61,10 @@ def optimal_advantage(states: np.ndarray, actions: np.ndarray, goals: np.ndarray
     return (r + cont - optimal_value(states, goals, k, family.terminate_on_goal)).astype(np.float32, copy=False)
 
 
-def rollout_returns(family: DarkRoomFamily, goals: np.ndarray, p_optimal: np.ndarray,
-                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Returns of the mixed policy with per-episode p, and the optimal return from the same starts."""
-    env = family.make_env(goals)
-    obs, _ = env.reset(seed=int(rng.integers(2**31)))
-    optimal = optimal_value(env.states, goals, family.horizon, family.terminate_on_goal)
-    total = np.zeros(len(goals), dtype=np.float64)
-    for _ in range(family.horizon):
-        a = family.oracle.behavior_actions(env.oracle_state(), p_optimal, rng)
-        _, r, _, _, _ = env.step(a)
-        total += r
-    return total, optimal.astype(np.float64)
-
-
-def calibrate_mixing(family: DarkRoomFamily, targets: dict[str, float], episodes_per_goal: int = 25,
-                     seed: int = 0, grid: int = 51) -> dict[str, dict[str, float]]:
-    """Find p per quality so the mixed policy earns ``target`` × optimal return on the training goals.
-
-    Simulates every p of a grid on all training goals at once, makes the return-ratio curve monotone,
-    inverts it by interpolation, then re-simulates at the chosen p to report the achieved ratio.
-    """
-    rng = np.random.default_rng(seed)
-    goals = family.train_goals
-    ps = np.linspace(0.0, 1.0, grid)
-    rep_goals = np.tile(np.repeat(goals, episodes_per_goal, axis=0), (grid, 1))
-    rep_p = np.repeat(ps, len(goals) * episodes_per_goal)
-    ret, opt = rollout_returns(family, rep_goals, rep_p, rng)
-    ratio = (ret.reshape(grid, -1).mean(1) / opt.reshape(grid, -1).mean(1))
-    chosen = invert_quality_curve(ps, ratio, targets)
-    out: dict[str, dict[str, float]] = {}
-    for name, p in chosen.items():
-        check_goals = np.repeat(goals, episodes_per_goal, axis=0)
-        r, o = rollout_returns(family, check_goals, np.full(len(check_goals), p), rng)
-        out[name] = {"target": float(targets[name]), "mixing": p, "achieved": float(r.mean() / o.mean()),
-                     "mean_return": float(r.mean()), "optimal_return": float(o.mean())}
-    return out
-
-
 class DarkRoomOracle(Oracle):
     """The ``Oracle`` of ``families/base.py`` for a DarkRoom family (closed-form A*, see the module docstring)."""
 
-    def __init__(self, family: DarkRoomFamily) -> None:
+    def __init__(self, family: RoomRules) -> None:
         self.family = family
 
     def uniform_actions(self, state: DarkRoomState, rng: np.random.Generator) -> np.ndarray:

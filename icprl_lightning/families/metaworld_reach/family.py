@@ -35,7 +35,8 @@ from icprl_lightning.families.metaworld_reach.env import (
     SawyerReachEnvV3,
     ml1_goals,
 )
-from icprl_lightning.families.metaworld_reach.oracle import ReachOracle, calibrate_mixing, rollout_returns
+from icprl_lightning.families.metaworld_reach.oracle import ReachOracle
+from icprl_lightning.families.metaworld_reach.simulation import calibrate_mixing, rollout_returns
 from icprl_lightning.metrics import mean_sem, per_task_mean
 from icprl_lightning.validation import HyperparameterError, check_int
 
@@ -113,7 +114,7 @@ class ReachTaskFamily(TaskFamily):
 
     def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
         """Mixing level per target normalized return (R − R_uniform) / (R_expert − R_uniform), by simulation with
-        common random numbers on ``episodes`` training-goal episodes (``oracle.calibrate_mixing``).
+        common random numbers on ``episodes`` training-goal episodes (``simulation.calibrate_mixing``).
 
         An exception to the shared calibration (``families/calibration.py``) with the same measure and method
         (made monotone, inverted, re-measured) on this family's ``oracle.CALIBRATION_GRID``: 10 levels instead of

@@ -27,6 +27,8 @@ from metaworld.envs.sawyer_reach_v3 import SawyerReachEnvV3
 
 from icprl_lightning.families.metaworld_reach.env import (
     ACTION_DIM,
+    GOAL_HIGH,
+    GOAL_LOW,
     GOAL_SLICE,
     HORIZON,
     OBS_DIM,
@@ -37,6 +39,9 @@ from icprl_lightning.families.metaworld_reach.env import (
     reach_task,
     sample_puck_positions,
 )
+from icprl_lightning.families.registration import check_num_envs
+
+DEFAULT_GOAL = (GOAL_LOW + GOAL_HIGH) / 2  # the goal of gymnasium.make("icprl/MetaWorldReach-v0") alone
 
 
 class ReachGoalEnv(gym.Env):
@@ -80,7 +85,11 @@ class ReachGoalEnv(gym.Env):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self.t >= self.horizon:
             raise RuntimeError("episode is over (horizon reached or never reset): call reset()")
-        obs, *_ = self._env.step(np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0))
+        move = np.asarray(action, dtype=np.float64)
+        if move.shape != self.action_space.shape or not np.isfinite(move).all():
+            raise ValueError(f"action must be {self.action_space.shape[0]} finite numbers (clipped to [-1, 1]), "
+                             f"got {action!r}")
+        obs, *_ = self._env.step(np.clip(move, -1.0, 1.0))
         self._raw_obs = obs
         self.t += 1
         reward = float(latent_reward(self._env.tcp_center, self.goal))
@@ -101,8 +110,9 @@ class ReachGoalEnv(gym.Env):
         return obs
 
 
-def reach_env(goal: np.ndarray, horizon: int = HORIZON, goal_visible: bool = False) -> ReachGoalEnv:
-    """``gymnasium.make("icprl/MetaWorldReach-v0", goal=[x, y, z])``: one reach-v3 task."""
+def reach_env(goal: np.ndarray | None = None, horizon: int = HORIZON, goal_visible: bool = False) -> ReachGoalEnv:
+    """``gymnasium.make("icprl/MetaWorldReach-v0", goal=[x, y, z])``: one reach-v3 task; without a goal,
+    ``DEFAULT_GOAL``, the centre of reach-v3's goal box."""
     return ReachGoalEnv(_batch_of_goals(1, goal, None)[0], horizon=horizon, goal_visible=goal_visible)
 
 
@@ -111,8 +121,9 @@ def reach_vector_env(num_envs: int = 1, goal: np.ndarray | None = None, goals: n
     """``gymnasium.make_vec("icprl/MetaWorldReach-v0", num_envs=N, goal=[x, y, z])``: ``ReachVectorEnv``.
 
     ``goal`` [3] gives every episode the same task (what ``make_vec(..., vectorization_mode="sync")`` builds
-    from the same kwargs); ``goals`` [N, 3] gives each its own. ``num_workers`` worker processes (0: this
-    process) step the envs; workers need the caller's script under ``if __name__ == "__main__":``.
+    from the same kwargs); ``goals`` [N, 3] gives each its own; neither: ``DEFAULT_GOAL``. ``num_workers``
+    worker processes (0: this process) step the envs; workers need the caller's script under
+    ``if __name__ == "__main__":``.
     """
     if goal_visible:
         # the batched env serves learners: its observations always hide the goal
@@ -122,12 +133,14 @@ def reach_vector_env(num_envs: int = 1, goal: np.ndarray | None = None, goals: n
 
 
 def _batch_of_goals(num_envs: int, goal: np.ndarray | None, goals: np.ndarray | None) -> np.ndarray:
-    """The [num_envs, 3] finite goals from exactly one of ``goal`` [3] and ``goals`` [num_envs, 3]."""
-    if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
-        raise ValueError(f"icprl/MetaWorldReach-v0: num_envs must be an integer >= 1, got {num_envs!r}")
-    if (goal is None) == (goals is None):
-        raise ValueError("icprl/MetaWorldReach-v0: pass exactly one of goal=[x, y, z] (every env) and "
-                         f"goals=[[x, y, z], ...] (one per env, {num_envs} rows)")
+    """The [num_envs, 3] finite goals from at most one of ``goal`` [3] and ``goals`` [num_envs, 3] (neither:
+    ``DEFAULT_GOAL``)."""
+    check_num_envs("icprl/MetaWorldReach-v0", num_envs, goals)
+    if goal is not None and goals is not None:
+        raise ValueError("icprl/MetaWorldReach-v0: pass one of goal=[x, y, z] (every env) and "
+                         f"goals=[[x, y, z], ...] (one per env, {num_envs} rows), not both")
+    if goal is None and goals is None:
+        goal = DEFAULT_GOAL
     points = np.tile(np.asarray(goal, dtype=np.float64), (num_envs, 1)) if goals is None \
         else np.asarray(goals, dtype=np.float64)
     if points.shape != (num_envs, 3) or not np.all(np.isfinite(points)):

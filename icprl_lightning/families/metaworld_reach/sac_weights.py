@@ -27,11 +27,11 @@ Export (from a training run's directory; ``--targets`` are the behavior policies
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
-import sys
+import re
 import zipfile
+import zlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -42,6 +42,7 @@ from torch import nn
 
 from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, OBS_DIM
 from icprl_lightning.io import sha256, staged_directory
+from icprl_lightning.untrusted import check_torch_archive, read_json
 
 MANIFEST = "oracle.json"
 CHECKSUMS = "SHA256SUMS"
@@ -51,6 +52,7 @@ LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0  # SB3's clamp of the actor's log-std
 HIDDEN = 256
 FINAL = 1.0  # the level of the final (converged) policy
 DEFAULT_TARGETS = (0.2, 0.4, 0.5, 0.8)  # I-PRL's 20/80% pair, the 40% medium contexts, T-PRL's 50%
+MAX_POLICY_BYTES = 256 << 20  # a policy.pth inflated (Reach's SAC: ~3 MB)
 POLICY_MEMBER = "policy.pth"  # the SB3 zip member holding the policy's state dict (actor, critic, target critic)
 
 
@@ -101,9 +103,14 @@ def sb3_policy_tensors(path: str | Path) -> dict[str, torch.Tensor]:
         with zipfile.ZipFile(path) as archive:
             if POLICY_MEMBER not in archive.namelist():
                 raise ValueError(f"{path} is not a Stable-Baselines3 checkpoint: no {POLICY_MEMBER} member")
-            raw = archive.read(POLICY_MEMBER)
-    except (OSError, zipfile.BadZipFile) as e:
+            with archive.open(POLICY_MEMBER) as member:  # inflated up to the bound, never beyond it
+                raw = member.read(MAX_POLICY_BYTES + 1)
+    except (OSError, zipfile.BadZipFile, zlib.error, EOFError) as e:
         raise ValueError(f"{path} is not a readable Stable-Baselines3 zip ({type(e).__name__}: {e})") from None
+    if len(raw) > MAX_POLICY_BYTES:
+        raise ValueError(f"{path}: its {POLICY_MEMBER} inflates beyond {MAX_POLICY_BYTES:,} bytes; a Reach SAC "
+                         "policy is a few MB, so this file is forged or not an oracle checkpoint")
+    check_torch_archive(raw, f"{path} (member {POLICY_MEMBER})")
     try:
         state = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
     except Exception as e:  # torch raises many types; an UnpicklingError for a pickle naming a disallowed global
@@ -217,20 +224,29 @@ class ExportedSAC:
         if not (self.path / MANIFEST).is_file() or not (self.path / CHECKSUMS).is_file():
             raise FileNotFoundError(f"{self.path} is not an exported SAC oracle (no {MANIFEST} / {CHECKSUMS}); "
                                     "export one with `icprl oracle export`")
-        self._verify()
-        self.manifest = json.loads((self.path / MANIFEST).read_text())
-        if self.manifest.get("schema_version") != FORMAT_VERSION:
-            raise ValueError(f"{self.path / MANIFEST}: schema {self.manifest.get('schema_version')}, expected "
-                             f"{FORMAT_VERSION}")
-        self.reward_scale = float(self.manifest["reward_scale"])
-        self._actors = {}
-        for entry in self.manifest["policies"].values():
-            self._actors[float(entry["level"])] = self._load(SACActor(), entry["file"])
-        self.critic = self._load(SACCritic(), self.manifest["critic"])
+        self._listed = self._verify()
+        self.manifest = read_json(self.path / MANIFEST, "SAC oracle manifest")
+        if not isinstance(self.manifest, dict) or self.manifest.get("schema_version") != FORMAT_VERSION:
+            found = self.manifest.get("schema_version") if isinstance(self.manifest, dict) else None
+            raise ValueError(f"{self.path / MANIFEST}: schema {found}, expected {FORMAT_VERSION}")
+        policies, critic = self.manifest.get("policies"), self.manifest.get("critic")
+        if not isinstance(policies, dict) or not all(isinstance(e, dict) for e in policies.values()):
+            raise ValueError(f"{self.path / MANIFEST}: 'policies' must map names to entries, got {policies!r}")
+        try:
+            self.reward_scale = float(self.manifest["reward_scale"])
+            levels = [float(e["level"]) for e in policies.values()]
+        except (KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"{self.path / MANIFEST}: a level or the reward_scale is missing or not a number "
+                             f"({type(e).__name__}: {e})") from None
+        self._actors = {level: self._load(SACActor(), entry.get("file"))
+                        for level, entry in zip(levels, policies.values(), strict=True)}
+        self.critic = self._load(SACCritic(), critic)
 
-    def _verify(self) -> None:
+    def _verify(self) -> set[str]:
+        """Every file of ``SHA256SUMS`` checked; the names it lists (plain names inside the directory)."""
         listed = {}
-        for line in (self.path / CHECKSUMS).read_text().splitlines():
+        text = (self.path / CHECKSUMS).read_text(errors="replace")
+        for line in text.splitlines():
             digest, _, name = line.partition("  ")
             listed[name] = digest
         for name, digest in listed.items():
@@ -241,10 +257,30 @@ class ExportedSAC:
                                  "corrupt or was edited: re-export it")
         if MANIFEST not in listed:
             raise ValueError(f"{self.path / CHECKSUMS} does not cover {MANIFEST}")
+        return set(listed)
 
-    def _load(self, module: nn.Module, file: str) -> nn.Module:
-        state = torch.load(self.path / file, map_location="cpu", weights_only=True)
-        module.load_state_dict(state)
+    def _load(self, module: nn.Module, file: Any) -> nn.Module:
+        """``module`` with the weights of ``file``: a plain name in the directory, listed (and so verified) in
+        ``SHA256SUMS``, a bounded torch archive holding tensors only; anything else a ValueError naming it."""
+        if not isinstance(file, str) or file not in self._listed or file == MANIFEST:
+            raise ValueError(f"{self.path / MANIFEST} names weight file {file!r}, which is not a file of the oracle "
+                             f"directory listed in {CHECKSUMS}; refusing to load it")
+        path = self.path / file
+        check_torch_archive(path)
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as e:  # an UnpicklingError for a pickle naming a global; others for a damaged file
+            named = re.search(r"GLOBAL (\S+)", str(e))
+            why = f"its pickle names {named.group(1)}" if named else f"{type(e).__name__}: {str(e)[:200]}"
+            raise ValueError(f"{path} was refused: it holds more than tensors (pickled objects, which could run "
+                             f"code) or is damaged ({' '.join(why.split())})") from None
+        if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+            raise ValueError(f"{path} is not a state dict of tensors")
+        try:
+            module.load_state_dict(state, strict=True)
+        except RuntimeError as e:
+            first = str(e).strip().splitlines()[0]
+            raise ValueError(f"{path} does not fit {type(module).__name__} ({first})") from None
         return module.eval()
 
     @property
@@ -290,23 +326,3 @@ class ExportedSAC:
         with torch.no_grad():
             q = self.critic(o.expand(*a.shape[:-1], OBS_DIM), a.clamp(-1.0, 1.0))
         return q.numpy().astype(np.float64) / self.reward_scale
-
-
-def main(args: Sequence[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(prog="icprl oracle export", description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_dir", type=Path, help="a training run of `icprl oracle train`")
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--targets", type=float, nargs="+", default=list(DEFAULT_TARGETS))
-    parser.add_argument("--overwrite", action="store_true")
-    ns = parser.parse_args(args)
-    out = export_sac_oracle(ns.run_dir, ns.out, ns.targets, ns.overwrite)
-    oracle = ExportedSAC(out)
-    for level in oracle.levels:
-        p = oracle.policy_info(level)
-        print(f"level {level}: step {p['step']}, eval return {p['eval_return']:.2f}, success {p['eval_success']:.2f}, "
-              f"normalized {p['normalized_return']:.2f}", file=sys.stderr)
-    return out
-
-
-if __name__ == "__main__":
-    main()

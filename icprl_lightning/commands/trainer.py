@@ -1,4 +1,5 @@
-"""The LightningCLI behind ``icprl fit | validate | test | predict | generate`` (``cli.py`` dispatches to it).
+"""The LightningCLI behind ``icprl fit | validate | test | predict | generate`` (``commands/__init__.py`` dispatches
+to it).
 
 Model and data are chosen by ``class_path`` / ``init_args`` (subclass mode). The environment sizes are
 written once, by the DataModule, and linked into the model. The resolved config is saved beside the run's
@@ -261,27 +262,35 @@ class ICPRLCLI(LightningCLI):
         self.check_checkpoint_fits()
 
 
-def run_cli(args: list[str], run: bool = True) -> ICPRLCLI:
+def run_cli(args: list[str], run: bool = True, verbose: bool | None = None) -> ICPRLCLI:
     """Parse ``args`` as the command line would be (tests call this) and run the subcommand.
 
     Every ``fit`` gets its own run directory (``RunDirectory``, also under ``fast_dev_run``, where Lightning
     adds no config callback), holding its ``config.yaml`` (``SaveConfigToRun``) and checkpoints.
     W&B defaults to offline (``WANDB_MODE=offline``) unless ``WANDB_MODE`` says otherwise, e.g. ``disabled``;
     the configs do not set the logger's ``offline: true``, which Lightning turns into ``WANDB_MODE=dryrun``
-    over a ``disabled`` one.
+    over a ``disabled`` one. ``verbose`` (``icprl --verbose``; None: ``ICPRL_VERBOSE``) shows the model summary.
     """
     warnings.filterwarnings("ignore", message=".*args parameter is intended to run from within Python.*")
     os.environ.setdefault("WANDB_MODE", "offline")
     wandb = sys.modules.get("wandb")  # a W&B run left by an earlier fit in this process: WandbLogger would reuse it
     if wandb is not None and getattr(wandb, "run", None) is not None:
         wandb.finish()
-    return ICPRLCLI(L.LightningModule, L.LightningDataModule, subclass_mode_model=True, subclass_mode_data=True,
-                    save_config_callback=SaveConfigToRun,
-                    # the DataModule shards its rows itself under several processes (data/datamodule.py)
-                    # Lightning's bar only in a terminal: in a log, TrainingProgress prints plain lines instead
-                    trainer_defaults={**TRAINER_DEFAULTS, "callbacks": default_callbacks(),
-                                      "use_distributed_sampler": False, "enable_progress_bar": is_terminal()},
-                    args=args, run=run, parser_kwargs=PARSER_KWARGS)
+    if verbose is None:  # icprl --verbose passes it; ICPRL_VERBOSE=1 as for the tracebacks (commands/__init__.py)
+        verbose = os.environ.get("ICPRL_VERBOSE", "") not in ("", "0")
+    cli = ICPRLCLI(L.LightningModule, L.LightningDataModule, subclass_mode_model=True, subclass_mode_data=True,
+                   save_config_callback=SaveConfigToRun,
+                   # the DataModule shards its rows itself under several processes (data/datamodule.py)
+                   # Lightning's bar only in a terminal: in a log, TrainingProgress prints plain lines instead;
+                   # the model summary with --verbose only (a config may still ask for it)
+                   trainer_defaults={**TRAINER_DEFAULTS, "callbacks": default_callbacks(),
+                                     "use_distributed_sampler": False, "enable_progress_bar": is_terminal(),
+                                     "enable_model_summary": verbose},
+                   args=args, run=run, parser_kwargs=PARSER_KWARGS)
+    wandb = sys.modules.get("wandb")
+    if run and wandb is not None and getattr(wandb, "run", None) is not None:
+        wandb.finish()  # now, not at exit, where W&B's closing lines keep their colour codes in a log
+    return cli
 
 
 # No environment variables are read; errors raise (``parse_arguments`` makes them one line); no option is
