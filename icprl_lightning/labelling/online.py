@@ -41,7 +41,7 @@ import numpy as np
 
 from icprl_lightning.annotators.base import Annotator, StepQueries, TrajectoryQueries
 from icprl_lightning.annotators.labels import CODES, AnnotatorError
-from icprl_lightning.labelling.answer_log import AnswerLog
+from icprl_lightning.labelling.answer_log import AnswerLog, Refused
 
 
 @dataclass
@@ -54,6 +54,8 @@ class OnlineSession:
     open_ended = True  # the page waits for the next question instead of saying "all answered"
 
     def show(self, pair: str) -> dict[str, Any]:
+        if pair not in self.shown:  # asked before this run (a continued session), to someone else
+            raise Refused(f"pair {pair!r} was asked in an earlier run; answer as the run's annotator", 409)
         return self.shown[pair]
 
 

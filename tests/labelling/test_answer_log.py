@@ -83,3 +83,14 @@ def test_two_tabs_of_one_person_never_answer_a_pair_twice(tmp_path):
         t.join()
     lines = [json.loads(x) for x in (tmp_path / "a.jsonl").read_text().splitlines()]
     assert [x["pair"] for x in lines] == PAIRS
+
+
+def test_answers_an_agent_has_used_cannot_be_undone(tmp_path):
+    log = AnswerLog.open(tmp_path / "a.jsonl", PAIRS)
+    log.answer("ann", "p-00000", "first", "n0000000", 10)
+    log.answer("ann", "p-00001", "second", "n0000001", 10)
+    log.frozen["ann"] = 1  # the agent has read the first answer
+    log.undo("ann", "n0000002")  # the second is still the person's to take back
+    with pytest.raises(Refused, match="no answer to undo"):
+        log.undo("ann", "n0000003")
+    assert [a["pair"] for a in log.answers["ann"]] == ["p-00000"]
