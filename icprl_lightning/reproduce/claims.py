@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from icprl_lightning.reproduce.statistics import Scores, difference, scores_of, verdict
+from icprl_lightning.reproduce.statistics import Scores, difference, main_metric, scores_of, verdict
 
 CLAIMS = Path("docs/claims.yaml")
 # how a column of a results JSON is named in the claims table's header
@@ -117,7 +117,6 @@ class Comparison:
 
 def comparisons(root: Path, claim: Claim, a: str, b: str) -> tuple[str, list[Comparison]]:
     """The metric key and, per column of ``claim``, rows ``a`` against ``b`` of its JSON."""
-    from icprl_lightning.reproduce.render import main_metric  # render imports this module: no cycle at load
 
     path = root / claim.table / f"{claim.file}.json"
     payload = json.loads(path.read_text())

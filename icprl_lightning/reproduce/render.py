@@ -25,7 +25,6 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Iterable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -35,9 +34,11 @@ from icprl_lightning.evaluation.base import KIND, evaluation_of
 from icprl_lightning.io import payloads_in, save_figure, write_atomic
 from icprl_lightning.reproduce.claims import CLAIMS, claims_table, full_table
 from icprl_lightning.reproduce.statistics import (
+    Metric,
     Scores,
     difference,
     interval,
+    main_metric,
     performance_profile,
     probability_of_improvement,
     scores_of,
@@ -62,25 +63,6 @@ DIAGNOSTIC_NAMES = {"random_labels": "random labels", "flipped_labels": "flipped
 # the headline tables whose performance profile is drawn: table -> its JSON's stem
 PROFILES = {"darkroom_ipref": "darkroom_ipref", "metaworld_heldout": "metaworld_heldout_fresh_goals",
             "bandit": "bandit"}
-
-
-@dataclass(frozen=True)
-class Metric:
-    """The number a table is read by, and which way is better."""
-
-    key: str
-    label: str
-    higher_is_better: bool
-
-
-def main_metric(payload: dict[str, Any]) -> Metric:
-    """Weak regret for bandit tables, else normalized return where the rows have it, else return."""
-    first_row = next(iter(next(iter(payload["results"].values())).values()))
-    if "weak_regret" in first_row:
-        return Metric("weak_regret", "weak regret at h = H (lower is better)", False)
-    if "normalized_return" in first_row:
-        return Metric("normalized_return", "normalized return (higher is better)", True)
-    return Metric("return", "return (higher is better)", True)
 
 
 def is_evaluation(payload: Any) -> bool:

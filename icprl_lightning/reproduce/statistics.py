@@ -205,3 +205,22 @@ def verdict(diff: Estimate, higher_is_better: bool = True) -> str:
         return "tie"
     better = diff.low > 0 if higher_is_better else diff.high < 0
     return "holds" if better else "reversed"
+
+
+@dataclass(frozen=True)
+class Metric:
+    """The number a table is read by, and which way is better."""
+
+    key: str
+    label: str
+    higher_is_better: bool
+
+
+def main_metric(payload: dict[str, Any]) -> Metric:
+    """Weak regret for bandit tables, else normalized return where the rows have it, else return."""
+    first_row = next(iter(next(iter(payload["results"].values())).values()))
+    if "weak_regret" in first_row:
+        return Metric("weak_regret", "weak regret at h = H (lower is better)", False)
+    if "normalized_return" in first_row:
+        return Metric("normalized_return", "normalized return (higher is better)", True)
+    return Metric("return", "return (higher is better)", True)

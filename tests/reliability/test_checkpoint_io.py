@@ -1,6 +1,6 @@
 """Atomic checkpoints whatever the plugins (``callbacks/atomic_io.use_atomic_saves``): ``AsyncCheckpointIO`` saves
 through the atomic writer, any other checkpoint IO is refused in one line; every ``trainer.precision`` either
-trains on CPU or is refused in one line before anything is generated (``trainer_cli.PRECISIONS``)."""
+trains on CPU or is refused in one line before anything is generated (``commands/trainer.PRECISIONS``)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ import lightning as L
 import pytest
 import torch
 from factories import TINY_DATA, TINY_MODEL
-from icprl_lightning.commands import main
 from lightning.pytorch.plugins.io import AsyncCheckpointIO, TorchCheckpointIO
 
 from icprl_lightning.callbacks.atomic_io import AtomicCheckpointIO, use_atomic_saves
+from icprl_lightning.commands import main
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 REPO = Path(__file__).resolve().parents[2]
