@@ -5,7 +5,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any, NoReturn
@@ -134,7 +133,7 @@ def run_registered(args: argparse.Namespace, datamodules: dict[str, Any], greedy
     import yaml
 
     from icprl_lightning.evaluation.base import KIND, Run
-    from icprl_lightning.io import jsonable
+    from icprl_lightning.io import write_atomic, write_json_atomic
     from icprl_lightning.registry import EVALUATIONS
 
     options = {}
@@ -156,8 +155,8 @@ def run_registered(args: argparse.Namespace, datamodules: dict[str, Any], greedy
                **evaluation.run(runs, list(args.seeds))}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(jsonable(payload), indent=2))
-    out.with_suffix(".md").write_text(kind.markdown(payload))
+    write_json_atomic(out.with_suffix(".json"), payload)  # never through a link (io.write_atomic)
+    write_atomic(out.with_suffix(".md"), kind.markdown(payload))
     kind.figure(payload, out.with_suffix(".png"))
     print(kind.markdown(payload), flush=True)
     print(f"wrote {out}.json, {out}.md" + (f", {out}.png" if out.with_suffix(".png").exists() else ""), flush=True)

@@ -59,7 +59,8 @@ class HeldOutEvaluation(ABC):
 
     @staticmethod
     def figure(payload: dict[str, Any], path: Path) -> None:
-        """Draw the payload's figure at ``path`` (none by default)."""
+        """Draw the payload's figure at ``path`` (none by default); save it with ``io.save_figure``, which never
+        writes through a link."""
         return None
 
 
