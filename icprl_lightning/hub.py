@@ -271,6 +271,21 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
     return out_dir
 
 
+def reissue_results(directory: str | Path, results: str | Path) -> Path:
+    """Give a model directory another ``icprl evaluate`` JSON of its own weights (e.g. on more held-out tasks) as
+    results.json and rewrite its card from it; the weights and config.json's provenance stay. Returns the directory."""
+    directory = Path(directory)
+    module, config, evaluation = load_model_dir(directory), read_config(directory), _read_results(Path(results))
+    config["results"] = RESULTS
+    with staged_directory(directory, marker=CONFIG, schema_version=SCHEMA_VERSION, what=WHAT, overwrite=True) as tmp:
+        shutil.copy2(directory / WEIGHTS, tmp / WEIGHTS)
+        (tmp / CONFIG).write_text(json.dumps(config, indent=2, default=str) + "\n")
+        shutil.copyfile(results, tmp / RESULTS)
+        model_card(config, module, evaluation).save(tmp / CARD)
+        load_model_dir(tmp)
+    return directory
+
+
 # ---- the model card ------------------------------------------------------------------------------------------
 
 def _short_class(spec: Any) -> str:
@@ -396,7 +411,8 @@ def model_card(config: dict[str, Any], module: torch.nn.Module, evaluation: dict
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="icprl export", description=__doc__.split("\n")[0])
-    parser.add_argument("checkpoint", help="a .ckpt of any icprl_lightning method")
+    parser.add_argument("checkpoint", help="a .ckpt of any icprl_lightning method, or a model directory (with "
+                        "--results and --out the same directory: its card re-issued on those results)")
     parser.add_argument("--out", required=True, help="the model directory to write")
     parser.add_argument("--results", help="an `icprl evaluate` JSON of this checkpoint, shown in the model card")
     parser.add_argument("--run-config", help="the run's config.yaml (default: the one beside checkpoints/)")
@@ -404,6 +420,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--name", help="the model's name (default: the directory's)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing model directory")
     args = parser.parse_args(argv)
+    if Path(args.checkpoint).is_dir() and (Path(args.checkpoint) / CONFIG).is_file():
+        if args.results is None or Path(args.out).resolve() != Path(args.checkpoint).resolve():
+            parser.error("a model directory takes --results and --out naming the same directory (its new results)")
+        return print(f"wrote {reissue_results(args.checkpoint, args.results)}: results.json and its card")
     out = export_model(args.checkpoint, args.out, results=args.results, run_config=args.run_config,
                        command=args.command, name=args.name, overwrite=args.overwrite)
     size = sum(f.stat().st_size for f in out.iterdir())
