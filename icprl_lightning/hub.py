@@ -270,6 +270,21 @@ def _write_model_dir(out_dir: Path, overwrite: bool, tensors: dict[str, torch.Te
         load_model_dir(tmp)  # the staged copy loads, checks and all, before it is moved into place
 
 
+def reissue_results(directory: str | Path, results: str | Path) -> Path:
+    """Give a model directory another ``icprl evaluate`` JSON of its own weights (e.g. on more held-out tasks) as
+    results.json and rewrite its card from it; the weights and config.json's provenance stay. Returns the directory."""
+    directory = Path(directory)
+    module, config, evaluation = load_model_dir(directory), read_config(directory), _read_results(Path(results))
+    config["results"] = RESULTS
+    with staged_directory(directory, marker=CONFIG, schema_version=SCHEMA_VERSION, what=WHAT, overwrite=True) as tmp:
+        shutil.copy2(directory / WEIGHTS, tmp / WEIGHTS)
+        (tmp / CONFIG).write_text(json.dumps(config, indent=2, default=str) + "\n")
+        shutil.copyfile(results, tmp / RESULTS)
+        model_card(config, module, evaluation).save(tmp / CARD)
+        load_model_dir(tmp)
+    return directory
+
+
 # ---- the model card ------------------------------------------------------------------------------------------
 
 def _short_class(spec: Any) -> str:
