@@ -18,7 +18,7 @@ import torch
 import yaml
 from factories import REPO, tiny_darkroom_args
 
-from icprl_lightning.reproduce import main
+from icprl_lightning.commands.reproduce import main
 
 EPOCHS = 6
 
