@@ -57,14 +57,10 @@ the setting's class-level declarations (``data/settings/base.py``: ``family_type
 
 from __future__ import annotations
 
-import hashlib
-import json
 import os
 from collections.abc import Iterator, Sized
-from pathlib import Path
 from typing import Any
 
-import lightning as L
 import numpy as np
 from torch.utils.data import BatchSampler, DataLoader, DistributedSampler, RandomSampler, Sampler, SequentialSampler
 
@@ -74,13 +70,9 @@ from icprl_lightning.data.schema import DatasetSchema, check_dataset
 from icprl_lightning.data.settings.base import Setting
 from icprl_lightning.data.store import (
     StoredDataset,
-    check_replaceable_dataset,
-    dataset_lock,
-    load_dataset,
-    write_dataset,
 )
+from icprl_lightning.data.stored import StoredData
 from icprl_lightning.data.suites import BanditSuite, EvalSuite
-from icprl_lightning.data_contract import EVALUATIONS
 from icprl_lightning.families.base import Family
 from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError, check_int
@@ -142,7 +134,7 @@ def check_folds(setting: Setting, folds: Any, holdout_fold: Any) -> None:
                                   f"of training tasks to leave out of both), got {holdout_fold}")
 
 
-class PreferenceDataModule(L.LightningDataModule):
+class PreferenceDataModule(StoredData):
     """Generated in-context datasets of ``setting`` on ``family``; see the module docstring.
 
     Args:
@@ -237,37 +229,22 @@ class PreferenceDataModule(L.LightningDataModule):
         """Everything that determines the dataset's bytes (compared against the manifest on load)."""
         return {**self.family.config(), **self.setting.config()}
 
-    # ---- storage -------------------------------------------------------------------------------------
+    # ---- storage (data/stored.py) -------------------------------------------------------------------
     @property
-    def path(self) -> Path:
-        if self.data_dir is not None:
-            return Path(self.data_dir)
-        digest = hashlib.sha256(json.dumps(self.generator_config(), sort_keys=True).encode()).hexdigest()[:10]
-        return Path(self.root_dir) / f"{self.family.name}-{self.context_kind}-{digest}"
+    def store_name(self) -> str:
+        return self.context_kind
+
+    @property
+    def data_name(self) -> str:
+        return f"{type(self.setting).__name__} data"
+
+    def generate(self) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
+        return self.setting.generate(self.family, self.progress)
 
     @property
     def regenerate_hint(self) -> str:
         return (f"delete {self.path} (or pass --data.init_args.overwrite true) and run "
                 f"`icprl generate --config <your config>`; fit also generates a missing dataset")
-
-    def prepare_data(self) -> None:
-        path = self.path
-        if not self.overwrite and path.is_dir() and not os.access(path.parent, os.W_OK):
-            self._check_fields(self._read(verify=False))  # a read-only dataset: nothing to write, no lock to take
-            return
-        with dataset_lock(path):  # a second process waits here, then finds the dataset made by the first
-            if not self.overwrite and (path.exists() or path.is_symlink()):
-                self._check_fields(self._read(verify=False))
-                return
-            check_replaceable_dataset(path)  # refuse before generating, not after
-            splits, info = self.setting.generate(self.family, self.progress)
-            write_dataset(path, splits, self.generator_config(), info=info, overwrite=True)
-        self.overwrite = False  # generated now; later calls (e.g. setup in another stage) reuse it
-
-    def load(self) -> StoredDataset:
-        if self.dataset is None:
-            self.dataset = self._check_fields(self._read(verify=self.verify_checksums))
-        return self.dataset
 
     def required_fields(self) -> dict[str, list[str]]:
         """The fields the batches read from each split: the setting's, ``pair_fields``, query labels."""
@@ -285,13 +262,6 @@ class PreferenceDataModule(L.LightningDataModule):
         are fitted on these, so a preference method never sees the scale of a stored reward it is not served."""
         train = self.load()["train"]
         return {k: train[k] for k in self.batch_fields()}
-
-    def _read(self, verify: bool) -> StoredDataset:
-        return load_dataset(self.path, self.generator_config(), verify=verify, regenerate_hint=self.regenerate_hint)
-
-    def _check_fields(self, dataset: StoredDataset) -> StoredDataset:
-        dataset.require(self.required_fields(), self.regenerate_hint)
-        return dataset
 
     def schema(self) -> DatasetSchema:
         """What the model built from this DataModule's sizes expects of every split (``data/schema.py``)."""
@@ -385,8 +355,3 @@ class PreferenceDataModule(L.LightningDataModule):
         """Held-out T-PRL pairs per quality, each with another pair of its task (RewardGen's accuracy)."""
         self._require("heldout_pairs")
         return self.setting.heldout_pairs(self.load())
-
-    def _require(self, evaluation: str) -> None:
-        if evaluation not in self.offers:
-            raise ValueError(f"{type(self.setting).__name__} data offers no {evaluation} (it offers "
-                             f"{sorted(self.offers)}); {evaluation} needs {EVALUATIONS[evaluation]}")

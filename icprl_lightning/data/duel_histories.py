@@ -84,7 +84,7 @@ class DuelHistoryDataModule(HistoryWindowDataModule):
     store_name = "dts_history"
     histories = "DTS histories"
     generating = "DTS learning histories"
-    suites_note = " (AD is evaluated online: icprl evaluate online --ad-ckpt)"
+    offers_note = " (AD is evaluated online: icprl evaluate online --ad-ckpt)"
     unique_val_offsets = True  # distinct offsets: a window is a whole history by default
 
     def __init__(self, family: LinearDuelingBanditFamily, learner: DTSHistories | None = None,
@@ -161,7 +161,7 @@ class DuelHistoryDataModule(HistoryWindowDataModule):
             out[f"last_{n}_rounds_{name}_regret"] = round(float(regret[:, -n:].mean()), 4)
         return out
 
-    def required_arrays(self) -> dict[str, list[str]]:
+    def required_fields(self) -> dict[str, list[str]]:
         return {"tasks": [f"{s}_theta" for s in SPLITS], **dict.fromkeys(("train", "val"),
                                                                          [*HISTORY_FIELDS, "task_index"])}
 

@@ -10,28 +10,24 @@ they share lives here:
   uniformly drawn history at a uniformly drawn offset (``torch``'s generator, so ``seed_everything`` fixes them),
   validation windows from fixed (row, offset) pairs.
 * ``HistoryWindowDataModule``: the checks and fields its subclasses' constructors share, the data contract
-  (``data_contract.PreferenceData``: no held-out suites, ``offers`` empty, since AD is evaluated online), the
-  dataset's storage conventions (``data/store.py``: ``<root_dir>/<family>-<store_name>-<hash of the config>``,
-  written atomically with its manifest under the dataset's lock, a dataset made with another config is an error
-  naming the keys that differ) and the train / val loaders (``val_windows_per_history`` evenly spaced offsets per
+  (``data_contract.PreferenceData``: no held-out suites, ``offers`` empty, since AD is evaluated online), and the
+  train / val loaders; the storage (``<root_dir>/<family>-<store_name>-<hash of the config>``, written atomically
+  with its manifest under the dataset's lock) is the one stored-data base's, ``data/stored.py``, as for every
+  generated dataset (``val_windows_per_history`` evenly spaced offsets per
   val history, so ``val/loss`` is comparable across epochs).
 
 A subclass keeps what differs: its family and learner types (class attributes), its explicit ``__init__`` (the
 LightningCLI reads the typed parameters and defaults from it), ``context_length``, ``generator_config`` (the
-dataset's identity), ``generate``, the arrays a dataset must hold, how a window becomes a context, and the
-``train_arrays`` it serves. One process: under several processes every rank would draw its own windows (nothing is
-sharded).
+dataset's identity), ``generate``, the arrays a dataset must hold (``required_fields``), how a window becomes a
+context, and the ``train_arrays`` it serves. One process: under several processes every rank would draw its own
+windows (nothing is sharded).
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any, ClassVar
 
-import lightning as L
 import numpy as np
 import torch
 from torch import Tensor
@@ -41,12 +37,8 @@ from icprl_lightning.contexts import ActionSpec, Context, RewardTrajectoryContex
 from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.store import (
     StoredDataset,
-    check_replaceable_dataset,
-    dataset_lock,
-    load_dataset,
-    write_dataset,
 )
-from icprl_lightning.data_contract import EVALUATIONS
+from icprl_lightning.data.stored import StoredData
 from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError, check_int
 
@@ -88,7 +80,7 @@ class HistoryWindows(Dataset):
         return ContextSamples(self.build(window), task=torch.from_numpy(rows // self.per_goal).long())
 
 
-class HistoryWindowDataModule(L.LightningDataModule):
+class HistoryWindowDataModule(StoredData):
     """A source learner's histories on a family's training tasks, stored once and served as windows.
 
     The base of ``LearningHistoryDataModule`` and ``DuelHistoryDataModule``; see the module docstring. A subclass
@@ -109,7 +101,6 @@ class HistoryWindowDataModule(L.LightningDataModule):
     store_name: ClassVar[str]      # the dataset directory's middle part
     histories: ClassVar[str]       # the histories, as the errors name them
     generating: ClassVar[str]      # what prepare_data says it generates
-    suites_note: ClassVar[str] = ""  # said after bandit_suites' refusal
     unique_val_offsets: ClassVar[bool] = False  # drop coinciding validation offsets (e.g. a window = a history)
 
     def __init__(self, family: Any, learner: Any, counts: dict[str, int], windows_per_epoch: int,
@@ -144,13 +135,6 @@ class HistoryWindowDataModule(L.LightningDataModule):
         """Everything that determines the dataset's bytes (compared against the manifest on load)."""
         raise NotImplementedError
 
-    def generate(self) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
-        """The dataset's splits and the manifest's info."""
-        raise NotImplementedError
-
-    def required_arrays(self) -> dict[str, list[str]]:
-        """The arrays, per split, a stored dataset must hold."""
-        raise NotImplementedError
 
     def histories_per_task(self, split: str) -> int:
         """Histories per task in ``split`` (rows are task-major)."""
@@ -161,6 +145,10 @@ class HistoryWindowDataModule(L.LightningDataModule):
         raise NotImplementedError
 
     # ---- the data contract (data_contract.PreferenceData) ----------------------------------------------
+    @property
+    def data_name(self) -> str:
+        return self.histories
+
     @property
     def context_kind(self) -> str:
         return self.kind
@@ -179,52 +167,6 @@ class HistoryWindowDataModule(L.LightningDataModule):
 
     def batch_fields(self) -> tuple[str, ...]:
         return self.served
-
-    def evaluation_suites(self) -> list:
-        """None: AD is evaluated online, not on a stored context."""
-        return []
-
-    def bandit_suites(self) -> list:
-        raise ValueError(f"{self.histories} offer no bandit_suites; it needs {EVALUATIONS['bandit_suites']}"
-                         f"{self.suites_note}")
-
-    def heldout_pairs(self) -> dict[str, ContextSamples]:
-        raise ValueError(f"{self.histories} offer no heldout_pairs; it needs {EVALUATIONS['heldout_pairs']}")
-
-    # ---- storage -------------------------------------------------------------------------------------
-    @property
-    def path(self) -> Path:
-        if self.data_dir is not None:
-            return Path(self.data_dir)
-        digest = hashlib.sha256(json.dumps(self.generator_config(), sort_keys=True).encode()).hexdigest()[:10]
-        return Path(self.root_dir) / f"{self.family.name}-{self.store_name}-{digest}"
-
-    @property
-    def regenerate_hint(self) -> str:
-        return f"delete {self.path} (or pass --data.init_args.overwrite true); fit generates a missing dataset"
-
-    def prepare_data(self) -> None:
-        path = self.path
-        with dataset_lock(path):  # a second process waits here, then finds the dataset made by the first
-            if not self.overwrite and (path.exists() or path.is_symlink()):
-                self._read(verify=False)
-                return
-            check_replaceable_dataset(path)
-            if self.progress:
-                print(f"generating {self.generating} -> {path}", flush=True)
-            splits, info = self.generate()
-            write_dataset(path, splits, self.generator_config(), info=info, overwrite=True)
-        self.overwrite = False
-
-    def _read(self, verify: bool) -> StoredDataset:
-        data = load_dataset(self.path, self.generator_config(), verify=verify, regenerate_hint=self.regenerate_hint)
-        data.require(self.required_arrays(), self.regenerate_hint)
-        return data
-
-    def load(self) -> StoredDataset:
-        if self.dataset is None:
-            self.dataset = self._read(verify=self.verify_checksums)
-        return self.dataset
 
     # ---- batches -------------------------------------------------------------------------------------
     def val_offsets(self) -> np.ndarray:

@@ -129,7 +129,7 @@ class LearningHistoryDataModule(HistoryWindowDataModule):
             info[split] = {"first_episode_return": float(returns[0]), "last_episode_return": float(returns[-1])}
         return splits, {"mean_episode_return": info}
 
-    def required_arrays(self) -> dict[str, list[str]]:
+    def required_fields(self) -> dict[str, list[str]]:
         return dict.fromkeys(SPLITS, [*FIELDS, "episode_returns", "task_index"])
 
     # ---- batches -------------------------------------------------------------------------------------
