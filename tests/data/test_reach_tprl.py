@@ -278,8 +278,7 @@ def test_paper_configs_have_the_paper_architecture_and_data():
         stem = name if name.endswith("_tprl") else f"{name}_tprl"
         cfg = yaml.safe_load((REPO / f"configs/paper/{stem}.yaml").read_text())
         args = cfg["model"]["init_args"]
-        backbone = yaml.safe_load((REPO / "configs/paper" / args["backbone"]).read_text())  # the model group it names
-        assert backbone == {"n_layer": 8, "n_embd": 256, "n_head": 8}, name
+        assert args["backbone"] == {"n_layer": 8, "n_embd": 256, "n_head": 8}, name
         assert cfg["data"]["init_args"]["setting"]["init_args"]["trajectories_per_task"] == 5000
         assert args["lr"] == 3e-4
 
