@@ -243,7 +243,7 @@ def sources(draw) -> tuple[str, dict[str, np.ndarray], dict]:
             x = x[:, :-1]
         elif how == "extra_axis":
             x = x[..., None]
-        elif how == "drop_axis" and x.ndim > 1:
+        elif how == "drop_axis" and x.ndim > 1 and x.shape[-1] > 0:
             x = x[..., 0]
         elif how == "remove":
             arrays.pop(name)
