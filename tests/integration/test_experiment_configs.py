@@ -194,7 +194,7 @@ GOOD_RUN = "  - {name: A, configs: [configs/icpo_darkroom.yaml]}\n"
     (f"title: t\nruns:\n{GOOD_RUN}ceiling: configs/icpo_darkroom.yaml\n", "ceiling",
      "configs/icpo_darkroom.yaml is not JSON"),
     (f"title: t\nruns:\n{GOOD_RUN}ceiling: docs/results/dqn_from_scratch/dqn_from_scratch_darkroom.json\n", "ceiling",
-     "holds no numeric 'return_walking_to_map_goal' for any quality"),
+     "holds no numeric everything.return_walking_to_map_goal for any quality"),
     ("title: t\nruns_from: nowhere\nruns: [A]\n", "runs_from", "no table 'nowhere'"),
     ("title: t\nruns_from: darkroom_ipref\nruns: [ICPQ]\n", "runs", "['ICPQ']: no such run in darkroom_ipref"),
 ])
