@@ -66,7 +66,7 @@ def evaluate(checkpoint: Path, dm: PreferenceDataModule, seeds: list[int], greed
              ) -> dict[str, dict[str, float]]:
     agent = load_agent(checkpoint, greedy=greedy, seed=seeds[0])
     out = {}
-    for suite in dm.evaluation_suites():
+    for suite in dm.held_out("rollouts"):
         returns = np.mean([rollout_in_context(agent, suite, seed=s)["return"] for s in seeds], axis=0)
         mean, sem = mean_sem(per_task_mean(returns, suite.task_index))
         out[suite.quality] = {"return": mean, "return_sem": sem,
@@ -80,7 +80,7 @@ def pair_accuracy(checkpoint: Path, dm: PreferenceDataModule) -> dict[str, float
     if not isinstance(model, RewardGenModule):
         raise ValueError(f"{checkpoint} is a {type(model).__name__} checkpoint, not RewardGen's")
     model.eval()
-    correct = {q: model.pair_correct(batch).float() for q, batch in dm.heldout_pairs().items()}
+    correct = {q: model.pair_correct(batch).float() for q, batch in dm.held_out("pair_accuracy").items()}
     return {**{q: float(c.mean()) for q, c in correct.items()}, "all": float(torch.cat(list(correct.values())).mean())}
 
 
@@ -89,7 +89,7 @@ def label_correlation(checkpoint: Path, dms: dict[str, PreferenceDataModule]) ->
     """Pearson correlation of ICRG's deployment labels r̂ with the latent per-step rewards, per quality."""
     agent = load_agent(checkpoint)
     out = {}
-    for suite, oracle in zip(*(dms[k].evaluation_suites() for k in ("trajectory_preference", "reward_trajectory")),
+    for suite, oracle in zip(*(dms[k].held_out("rollouts") for k in ("trajectory_preference", "reward_trajectory")),
                              strict=True):
         agent.reset(suite.context)
         out[suite.quality] = float(np.corrcoef(agent.labeled_context.rewards.flatten().numpy(),

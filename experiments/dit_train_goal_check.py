@@ -41,7 +41,8 @@ import numpy as np
 from icprl_lightning.data.batches import to_tensor
 from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.data.suites import EvalSuite
-from icprl_lightning.evaluation.command import held_out_means, over_training_seeds
+from icprl_lightning.evaluation.base import over_training_seeds
+from icprl_lightning.evaluation.heldout_rollouts import held_out_means
 from icprl_lightning.evaluation.rollout import suite_env
 from icprl_lightning.io import write_json_atomic
 
@@ -88,7 +89,7 @@ def main() -> None:
     dm.prepare_data()
     greedy = True if args.greedy else None
     suites = {"training goals (validation contexts)": training_goal_suite(dm, args.reference_episodes, 0)}
-    suites.update({f"held-out goals ({s.quality})": s for s in dm.evaluation_suites()})
+    suites.update({f"held-out goals ({s.quality})": s for s in dm.held_out("rollouts")})
     payload = {"run": args.run, "seeds": args.seeds, "greedy": bool(args.greedy),
                "results": {name: evaluate(suite, checkpoints, args.seeds, greedy) for name, suite in suites.items()}}
     write_json_atomic(f"{args.out}.json", payload)

@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, object]]:
     dm = datamodule_from_config(*ns.config)
     dm.prepare_data()
     oracle = dm.family.oracle if ns.oracle else None
-    suites = dm.evaluation_suites()
+    suites = dm.held_out("rollouts")
     if ns.context_steps is not None:
         suites = [dataclasses.replace(s, context=s.context.map(lambda x: x[:, :ns.context_steps])) for s in suites]
     result = {suite.quality: probe_suite(load_agent(ns.checkpoint, greedy=not ns.sample, seed=ns.seed), suite,

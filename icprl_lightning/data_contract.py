@@ -9,7 +9,7 @@ Both DataModules implement it, ``PreferenceDataModule`` (generated data, ``data/
   (``validation.pairing_errors``) compares with what a model's loss reads;
 * ``train_arrays()``: the training split's arrays of exactly the served fields, on which a method fits its
   input statistics when a fit starts (the DataModule hands them over; a method never reads the store);
-* the held-out evaluations it ``offers`` (names from ``EVALUATIONS``) and the methods that build them. A
+* the held-out evaluations it ``offers`` (names from ``EVALUATIONS``) and ``held_out(name)``, what each reads. A
   callback declares the ones it reads as ``requires_data`` (``ReadsData``), and the pairing check refuses a
   callback whose evaluation the data does not offer before any data is generated;
 * ``metric_env`` (the ``val/<metric_env>/...`` namespace of logged metrics) and ``path`` (where the dataset is).
@@ -29,14 +29,13 @@ from icprl_lightning.contexts import ActionSpec
 if TYPE_CHECKING:
     import numpy as np
 
-    from icprl_lightning.samples import ContextSamples
 
 # The held-out evaluations a DataModule may offer (each the name of its method here), with what serves them.
 EVALUATIONS: dict[str, str] = {
-    "evaluation_suites": "data with held-out in-context rollouts (an MDP setting: StepPreferences, "
+    "rollouts": "data with held-out in-context rollouts (an MDP setting: StepPreferences, "
                          "TrajectoryPairs, RewardContexts, RewardTrajectories)",
-    "bandit_suites": "dueling-bandit data (setting icprl_lightning.data.settings.BanditDuels)",
-    "heldout_pairs": "trajectory_preference data (setting icprl_lightning.data.settings.TrajectoryPairs)",
+    "duels": "dueling-bandit data (setting icprl_lightning.data.settings.BanditDuels)",
+    "pair_accuracy": "trajectory_preference data (setting icprl_lightning.data.settings.TrajectoryPairs)",
 }
 
 
@@ -79,15 +78,11 @@ class PreferenceData(Protocol):
     def train_arrays(self) -> dict[str, np.ndarray]:
         """The training split's arrays of ``batch_fields()`` and nothing else (memory-mapped, read-only)."""
 
-    def evaluation_suites(self) -> list[Any]:
-        """The held-out in-context rollouts (``data.suites.EvalSuite``), one per context quality; empty when the
-        data has none."""
-
-    def bandit_suites(self) -> list[Any]:
-        """The held-out weak-regret evaluations (``data.suites.BanditSuite``); a ``ValueError`` unless offered."""
-
-    def heldout_pairs(self) -> dict[str, ContextSamples]:
-        """Held-out T-PRL pairs per quality, each with another pair of its task; a ``ValueError`` unless offered."""
+    def held_out(self, evaluation: str) -> Any:
+        """What one offered evaluation reads: ``rollouts`` a list of ``data.suites.EvalSuite`` (one per context
+        quality), ``duels`` a list of ``data.suites.BanditSuite`` (one per context source), ``pair_accuracy`` the
+        held-out T-PRL pairs per quality (``ContextSamples``, each with another pair of its task). An evaluation
+        not in ``offers`` is a ``ValueError`` (``not_offered``)."""
 
 
 @runtime_checkable
@@ -101,3 +96,10 @@ def missing_members(datamodule: object) -> list[str]:
     """The members of ``PreferenceData`` that ``datamodule`` lacks (empty: it implements the contract)."""
     members = {*PreferenceData.__annotations__, *(name for name in vars(PreferenceData) if not name.startswith("_"))}
     return sorted(m for m in members if not hasattr(datamodule, m))
+
+
+def not_offered(data_name: str, evaluation: str, offers: frozenset[str], note: str = "") -> ValueError:
+    """The error for asking ``data_name`` for an evaluation it does not offer, naming the data that would."""
+    needs = EVALUATIONS.get(evaluation, "a DataModule that offers it")
+    return ValueError(f"{data_name} offers no {evaluation} (it offers {sorted(offers)}); {evaluation} needs "
+                      f"{needs}{note}")

@@ -90,7 +90,13 @@ _BUILTIN_METHODS = ("icprl_lightning.methods.dpt.DPTModule", "icprl_lightning.me
 METHODS = Registry("method", "icprl_lightning.methods", {name: name for name in _BUILTIN_METHODS}, class_path,
                    ("make_agent", "on_save_checkpoint"),
                    "subclass icprl_lightning.methods.base.InContextModule; docs/extending_methods.md")
-EVALUATIONS = Registry("evaluation", "icprl_lightning.evaluations", {}, lambda cls: cls.name,
+_BUILTIN_EVALUATIONS = {"rollouts": "icprl_lightning.evaluation.heldout_rollouts.HeldOutRollouts",
+                        "duels": "icprl_lightning.evaluation.weak_regret.WeakRegret",
+                        "pair_accuracy": "icprl_lightning.evaluation.pair_accuracy.PairAccuracy",
+                        "online": "icprl_lightning.evaluation.online_mdp.OnlineMDP",
+                        "online_duels": "icprl_lightning.evaluation.online_bandit.OnlineBandit",
+                        "ad": "icprl_lightning.evaluation.ad_command.ADEpisodes"}
+EVALUATIONS = Registry("evaluation", "icprl_lightning.evaluations", _BUILTIN_EVALUATIONS, lambda cls: cls.name,
                        ("name", "run", "markdown"),
                        "subclass icprl_lightning.evaluation.base.HeldOutEvaluation; docs/extending_evaluations.md")
 

@@ -197,9 +197,9 @@ def pairing_errors(model: Any, datamodule: Any, callbacks: Iterable[Any] = ()) -
     for cb in callbacks:
         for evaluation in cb.requires_data if isinstance(cb, ReadsData) else ():
             if evaluation not in datamodule.offers:
-                errors.append(f"{type(cb).__name__} reads {evaluation}() of the data, but {d_name} ({produced} "
-                              f"contexts) has none: it needs {EVALUATIONS.get(evaluation, evaluation)}, or drop the "
-                              "callback")
+                errors.append(f"{type(cb).__name__} reads the held-out {evaluation} of the data, but {d_name} "
+                              f"({produced} contexts) has none: it needs {EVALUATIONS.get(evaluation, evaluation)}, "
+                              "or drop the callback")
     return errors
 
 

@@ -41,7 +41,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--browser-session", default=None,
                         help="MDP: a person answers each comparison in the browser (the page's address is printed); "
                              "the answers are logged in this directory")
-    parser.add_argument("--out", help="also write <out>.json and the figure <out>.png")
+    parser.add_argument("--out", help="also write <out>.json, its table <out>.md and the figure <out>.png")
     return parser.parse_args(argv)
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     args = parse_args(argv)

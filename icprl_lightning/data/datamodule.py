@@ -339,19 +339,10 @@ class PreferenceDataModule(StoredData):
         return self._loader("val", shuffle=False)
 
     # ---- evaluation (what the setting declares in ``evaluations``) --------------------------------------
-    def evaluation_suites(self) -> list[EvalSuite]:
-        """The held-out in-context rollouts the rollout callback runs (one per context quality); empty when the
-        setting offers none."""
-        if "evaluation_suites" not in self.offers:
-            return []
-        return self.setting.evaluation_suites(self.family, self.load())
-
-    def bandit_suites(self) -> list[BanditSuite]:
-        """The held-out weak-regret evaluations (dueling bandits)."""
-        self._require("bandit_suites")
-        return self.setting.bandit_suites(self.family, self.load())
-
-    def heldout_pairs(self) -> dict[str, ContextSamples]:
-        """Held-out T-PRL pairs per quality, each with another pair of its task (RewardGen's accuracy)."""
-        self._require("heldout_pairs")
-        return self.setting.heldout_pairs(self.load())
+    def _held_out(self, evaluation: str) -> list[EvalSuite] | list[BanditSuite] | dict[str, ContextSamples]:
+        """The setting's held-out rollouts (one per context quality), weak-regret duels (bandits) or T-PRL pairs
+        per quality, each with another pair of its task (RewardGen's accuracy)."""
+        if evaluation == "pair_accuracy":
+            return self.setting.heldout_pairs(self.load())
+        read = self.setting.evaluation_suites if evaluation == "rollouts" else self.setting.bandit_suites
+        return read(self.family, self.load())

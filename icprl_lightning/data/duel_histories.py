@@ -117,10 +117,6 @@ class DuelHistoryDataModule(HistoryWindowDataModule):
         return {"states": np.zeros((*first.shape, 0), dtype=np.float32), "actions": first,
                 "alt_actions": train["arms_second"], "preferred": train["preferred"]}
 
-    def evaluation_suites(self) -> list:
-        """None: AD plays online (``evaluation.online_bandit``), not on a stored context."""
-        return []
-
     # ---- storage -------------------------------------------------------------------------------------
     def generator_config(self) -> dict[str, Any]:
         """Everything that determines the dataset's bytes (compared against the manifest on load)."""

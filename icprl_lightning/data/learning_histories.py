@@ -103,10 +103,6 @@ class LearningHistoryDataModule(HistoryWindowDataModule):
         train = self.load()["train"]
         return {k: train[k] for k in FIELDS}
 
-    def evaluation_suites(self) -> list:
-        """None: AD deploys online across episodes (``evaluation.ad_rollout``), not on a stored context."""
-        return []
-
     # ---- storage -------------------------------------------------------------------------------------
     def generator_config(self) -> dict[str, Any]:
         """Everything that determines the dataset's bytes (compared against the manifest on load)."""

@@ -21,7 +21,7 @@ within ``|x| <= 1e6``), one ``DatasetError`` naming the split and field before t
 ``verify_checksums`` the files' SHA-256 are checked in ``setup``.
 
 There is no simulator behind recorded data, so it ``offers`` no held-out evaluation and
-``evaluation_suites()`` is empty: validation reports the methods' losses on the held-out tasks of the ``val``
+``held_out`` refuses every evaluation: validation reports the methods' losses on the held-out tasks of the ``val``
 split, and deployment is through ``load_agent``. What it serves is the data contract
 (``data_contract.PreferenceData``), as the generated data's DataModule: the pairing check (``icprl fit``, and
 ``InContextModule.on_fit_start`` for a fit without the CLI) compares the model's context kind with this data's,
@@ -43,11 +43,11 @@ from icprl_lightning.data.batches import ContextBatches
 from icprl_lightning.data.importer import FORMAT, KINDS, QUERY_FIELDS, TASK_FIELD
 from icprl_lightning.data.schema import DatasetSchema, check_dataset
 from icprl_lightning.data.store import DatasetError, StoredDataset, load_dataset
-from icprl_lightning.data_contract import EVALUATIONS
+from icprl_lightning.data_contract import not_offered
 from icprl_lightning.samples import ContextSamples
 
 if TYPE_CHECKING:  # types only: recorded data never builds a suite, so it needs no evaluation code
-    from icprl_lightning.data.suites import BanditSuite, EvalSuite
+    pass
 
 SPLITS = ("train", "val")
 # the manifest config keys this DataModule reads, with their JSON types (bool is not an int here)
@@ -195,16 +195,9 @@ class RecordedPreferenceDataModule(L.LightningDataModule):
         statistics on."""
         return {k: self.dataset["train"][k] for k in self.batch_fields()}
 
-    def evaluation_suites(self) -> list[EvalSuite]:
-        """No simulator behind recorded data: nothing to roll out."""
-        return []
-
-    def bandit_suites(self) -> list[BanditSuite]:
-        raise ValueError(f"recorded data offers no bandit_suites; it needs {EVALUATIONS['bandit_suites']}")
-
-    def heldout_pairs(self) -> dict[str, ContextSamples]:
-        raise ValueError("recorded data offers no heldout_pairs (no held-out evaluation splits); it needs "
-                         f"{EVALUATIONS['heldout_pairs']}")
+    def held_out(self, evaluation: str) -> None:
+        """No simulator behind recorded data, no held-out split: it offers no evaluation."""
+        raise not_offered("recorded data", evaluation, self.offers)
 
     def _make_batches(self, split: str) -> RecordedBatches:
         return RecordedBatches(self.dataset[split], self.context_kind, self.batch_fields(), self.pairs,

@@ -4,10 +4,10 @@
 histories for AD, ``data/history_windows.py``) share it: the dataset's directory (``data_dir``, or
 ``<root_dir>/<family>-<store_name>-<hash of the generator config>``), ``prepare_data`` (an existing dataset is
 read and checked, a missing one generated under the dataset's lock and written atomically with its manifest, a
-read-only dataset read without a lock), ``load`` (the checksums verified once) and the held-out evaluations of the
-data contract that the data does not offer (``EVALUATIONS``: ``evaluation_suites`` is empty, the others one error
-naming what would serve them). A subclass says what differs: ``store_name``, ``generator_config``, ``generate``,
-``required_fields``, ``regenerate_hint`` and the evaluations it ``offers``.
+read-only dataset read without a lock), ``load`` (the checksums verified once) and ``held_out`` (one error naming
+what would serve an evaluation the data does not offer). A subclass says what differs: ``store_name``,
+``generator_config``, ``generate``, ``required_fields``, ``regenerate_hint``, the evaluations it ``offers`` and how
+it reads them (``_held_out``).
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from icprl_lightning.data.store import (
     load_dataset,
     write_dataset,
 )
-from icprl_lightning.data_contract import EVALUATIONS
+from icprl_lightning.data_contract import not_offered
 
 
 class StoredData(L.LightningDataModule):
@@ -101,20 +101,13 @@ class StoredData(L.LightningDataModule):
             self.dataset = self._read(verify=self.verify_checksums)
         return self.dataset
 
-    # ---- the held-out evaluations the data does not offer --------------------------------------------
-    def evaluation_suites(self) -> list:
-        """None offered: nothing to roll out."""
-        return []
-
-    def bandit_suites(self) -> list:
-        self._require("bandit_suites")
-        return []
-
-    def heldout_pairs(self) -> dict:
-        self._require("heldout_pairs")
-        return {}
-
-    def _require(self, evaluation: str) -> None:
+    # ---- the held-out evaluations -------------------------------------------------------------------
+    def held_out(self, evaluation: str) -> Any:
+        """What an offered evaluation reads (``data_contract.PreferenceData.held_out``); a subclass that offers
+        one reads it in ``_held_out``."""
         if evaluation not in self.offers:
-            raise ValueError(f"{self.data_name} offers no {evaluation} (it offers {sorted(self.offers)}); "
-                             f"{evaluation} needs {EVALUATIONS[evaluation]}{self.offers_note}")
+            raise not_offered(self.data_name, evaluation, self.offers, self.offers_note)
+        return self._held_out(evaluation)
+
+    def _held_out(self, evaluation: str) -> Any:
+        raise NotImplementedError

@@ -27,15 +27,15 @@ episodes 1, 5, 10, ..., N) and the figure ``<out>.png``; ``evaluate_ad`` is the 
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
-from icprl_lightning.io import save_figure, write_atomic, write_json_atomic
+from icprl_lightning.evaluation.base import HeldOutEvaluation, Run
+from icprl_lightning.io import save_figure
 from icprl_lightning.untrusted import UntrustedFileError, read_json
 
 KIND = "ad_learning_curve"  # the JSON's ``kind``: how ``reproduce.render`` tells it from an ``icprl evaluate`` one
@@ -240,9 +240,7 @@ def evaluate_ad(runs: Mapping[str, tuple[str, Sequence[str]]], episodes: int = 2
                "actions": "sampled (AD's default, through load_agent)",
                "results": results, "learning_curves": curves}
     if out is not None:
-        write_json_atomic(f"{out}.json", payload)
-        write_atomic(f"{out}.md", ad_markdown(json.loads(Path(f"{out}.json").read_text())))
-        ad_figure(payload, f"{out}.png")
+        ADEpisodes.write(payload, out)
     return payload
 
 
@@ -315,4 +313,25 @@ def ad_figure(payload: dict[str, Any], path: str | Path) -> None:
     plt.close(fig)
 
 
-# ---- the command -------------------------------------------------------------------------------------------------
+class ADEpisodes(HeldOutEvaluation):
+    """Algorithm Distillation's in-context learning curve (the module docstring): every run's AD checkpoints for
+    ``episodes`` consecutive episodes on the family's held-out goals, beside the source learner and the optimum;
+    ``against``: name -> the JSON of an online evaluation drawn beside it. The runs' configs are read here (their
+    learning histories), so the runs' ``data`` are not used."""
+
+    name: ClassVar[str] = "ad"
+
+    def __init__(self, episodes: int = 20, against: dict[str, str] | None = None,
+                 title: str = "AD on held-out goals") -> None:
+        self.episodes, self.against, self.title = episodes, dict(against or {}), title
+
+    @classmethod
+    def recognizes(cls, payload: dict[str, Any]) -> bool:
+        return super().recognizes(payload) or is_ad_payload(payload)
+
+    def run(self, runs: list[Run], seeds: list[int]) -> dict[str, Any]:
+        return evaluate_ad({r.name: (r.config, list(r.checkpoints)) for r in runs}, self.episodes, seeds,
+                           title=self.title, against=self.against)
+
+    markdown = staticmethod(ad_markdown)
+    figure = staticmethod(ad_figure)

@@ -93,6 +93,14 @@ def diagnose(context: Any, diagnostic: str, task_index: np.ndarray, seed: int = 
     return context
 
 
+def checked_contexts(contexts: Any) -> list[str]:
+    """``own`` and diagnostics as given, each once; one named is neither is a ``ValueError``."""
+    unknown = [c for c in contexts if c not in DIAGNOSTICS]
+    if unknown:
+        raise ValueError(f"contexts: {unknown[0]!r} is not own or a diagnostic ({', '.join(DIAGNOSTICS[1:])})")
+    return list(dict.fromkeys(contexts))
+
+
 def applicable(context: Any, diagnostics: tuple[str, ...] | list[str]) -> list[str]:
     """The diagnostics that apply to ``context`` (label ones only where it has labels, order ones only where it
     has steps), in order."""

@@ -63,7 +63,7 @@ def deployment_labels(checkpoint: str | Path, pairs: PreferenceDataModule, rewar
     """Per quality, the correlation of the agent's labels of the held-out behavior trajectories with the latent ones."""
     agent = load_agent(checkpoint)
     out = {}
-    for suite, oracle in zip(pairs.evaluation_suites(), rewards.evaluation_suites(), strict=True):
+    for suite, oracle in zip(pairs.held_out("rollouts"), rewards.held_out("rollouts"), strict=True):
         agent.reset(suite.context)
         out[suite.quality] = correlation(agent.labeled_context.rewards, oracle.context.rewards)
     return out

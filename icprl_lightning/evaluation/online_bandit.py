@@ -49,12 +49,13 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
 from icprl_lightning.deploy import load_agent
+from icprl_lightning.evaluation.base import HeldOutEvaluation, Run
 from icprl_lightning.evaluation.duels import baseline_seeds, linear_learner, seed_streams
 from icprl_lightning.families.dueling_bandit import LinearDuelingBanditFamily
 from icprl_lightning.families.dueling_bandit.dts import run_dts
@@ -351,3 +352,30 @@ def online_bandit_figure(out: dict[str, Any], path: str | Path) -> None:
                  f"({len(out['checkpoints'])} training seeds)", fontsize=8)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     save_figure(fig, path, dpi=120)
+
+
+class OnlineBandit(HeldOutEvaluation):
+    """A dueling bandit's held-out problems played online (the module docstring), one run's checkpoints (its training
+    seeds); the options are ``icprl evaluate online``'s: ``rules``, ``labels``, ``rounds``, ``n_problems`` and
+    ``ad_checkpoints`` (the ``ad`` row)."""
+
+    name: ClassVar[str] = "online_duels"
+
+    def __init__(self, rules: Sequence[str] = ("action_uniform",), labels: str = "own", rounds: int = 200,
+                 n_problems: int | None = None, ad_checkpoints: Sequence[str] = ()) -> None:
+        self.options = {"rules": list(rules), "labels": labels, "rounds": rounds, "n_problems": n_problems,
+                        "ad_checkpoints": [str(c) for c in ad_checkpoints]}
+
+    @classmethod
+    def recognizes(cls, payload: dict[str, Any]) -> bool:
+        return super().recognizes(payload) or is_online_bandit_payload(payload)
+
+    def run(self, runs: list[Run], seeds: list[int]) -> dict[str, Any]:
+        if len(runs) != 1:
+            raise ValueError(f"the online evaluation plays one run (its checkpoints: training seeds), got {len(runs)}")
+        (run,) = runs
+        return {"configs": [run.config], **evaluate_online_bandit(run.data, run.checkpoints, seeds=seeds,
+                                                                  **self.options)}
+
+    markdown = staticmethod(online_bandit_markdown)
+    figure = staticmethod(online_bandit_figure)

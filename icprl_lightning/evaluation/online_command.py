@@ -20,7 +20,7 @@ duels (``configs/ad_bandit.yaml``, docs/ad_bandit.md) playing the same problems;
 ``--browser-session DIR`` (MDP) has a person answer each comparison in the labelling page instead of the
 dataset's annotator (``labelling/online.py``).
 
-Prints the result as JSON; ``--out PATH`` also writes ``PATH.json`` and the figure ``PATH.png``.
+Prints the result as JSON; ``--out PATH`` also writes ``PATH.json``, its table ``PATH.md`` and the figure ``PATH.png``.
 ``evaluate_online`` is the same run as a function.
 """
 
@@ -35,7 +35,6 @@ from icprl_lightning.evaluation import online_bandit, online_mdp
 from icprl_lightning.evaluation.pairing import fit_errors, is_bandit_data
 from icprl_lightning.families.base import TaskFamily
 from icprl_lightning.hub import load_model
-from icprl_lightning.io import write_json_atomic
 
 MDP_ONLY = {"episodes": "--episodes", "quality": "--quality", "targets": "--targets", "dqn": "--dqn",
             "browser_session": "--browser-session"}
@@ -103,6 +102,5 @@ def evaluate_online(configs: Sequence[str | Path], checkpoints: Sequence[str | P
                 person.stop()
     result = {"configs": [str(c) for c in configs], **result}
     if out is not None:
-        write_json_atomic(f"{out}.json", result)
-        (online_bandit.online_bandit_figure if bandit else online_mdp.online_mdp_figure)(result, f"{out}.png")
+        (online_bandit.OnlineBandit if bandit else online_mdp.OnlineMDP).write(result, out)
     return result

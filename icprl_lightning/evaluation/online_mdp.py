@@ -31,7 +31,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -40,6 +40,7 @@ from icprl_lightning.annotators.base import Annotator, StepQueries
 from icprl_lightning.annotators.labels import stored_labels
 from icprl_lightning.data.suites import EvalSuite
 from icprl_lightning.deploy import load_agent
+from icprl_lightning.evaluation.base import HeldOutEvaluation, Run
 from icprl_lightning.evaluation.rollout import rollout_seeds
 from icprl_lightning.families.base import TaskFamily
 from icprl_lightning.io import save_figure
@@ -155,7 +156,7 @@ def evaluate_online_mdp(dm: Any, checkpoints: Sequence[str], rules: Sequence[str
     if len(max_context) != 1:
         raise ValueError(f"the checkpoints' max_context differ ({sorted(max_context)}): one query budget needs one")
     per_episode = max_context.pop() // episodes
-    suites = {s.quality: s for s in dm.evaluation_suites()}
+    suites = {s.quality: s for s in dm.held_out("rollouts")}
     if quality not in suites:
         raise ValueError(f"--quality must be one of {', '.join(suites)}, got {quality!r}")
     suite = suites[quality]
@@ -230,3 +231,51 @@ def online_mdp_figure(out: dict[str, Any], path: str | Path) -> None:
                  f"({len(out['checkpoints'])} training seeds, mean ± sem)", fontsize=8)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     save_figure(fig, path, dpi=120)
+
+
+def online_mdp_markdown(out: dict[str, Any]) -> str:
+    """The table of an online MDP evaluation: per pair rule, the return of each episode (mean ± sem over training
+    seeds) after the queries answered before it, beside the offline contexts' and the optimal return."""
+    rules = list(out["online"])
+    first = out["online"][rules[0]]
+    lines = [f"Online I-PRL on {out['tasks']} held-out tasks, labels {out['labels']}, {len(out['checkpoints'])} "
+             "training seeds (mean ± sem over them):", "",
+             "| queries answered before the episode | " + " | ".join(f"{r} pairs" for r in rules) + " |",
+             "|---|" + "---|" * len(rules)]
+    for i, queries in enumerate(first["queries_before_episode"]):
+        cells = [f"{out['online'][r]['mean'][i]['return']:.1f} ± {out['online'][r]['mean'][i]['return_sem'] or 0:.1f}"
+                 for r in rules]
+        lines.append(f"| {queries} | " + " | ".join(cells) + " |")
+    lines.append("")
+    for quality, row in out["offline"].items():
+        optimal = f"; optimal {row['optimal_return']:.1f}" if "optimal_return" in row else ""
+        lines.append(f"Offline {quality} context: {row['return']:.1f} ± {row['return_sem']:.1f} (behavior "
+                     f"{row['behavior_return']:.1f}{optimal}).")
+    return "\n".join(lines) + "\n"
+
+
+class OnlineMDP(HeldOutEvaluation):
+    """An MDP family's held-out tasks played online (the module docstring), one run's checkpoints (its training
+    seeds); the options are ``icprl evaluate online``'s: ``rules``, ``labels``, ``episodes``, ``quality``,
+    ``targets`` and ``dqn``."""
+
+    name: ClassVar[str] = "online"
+
+    def __init__(self, rules: Sequence[str] = ("action_uniform",), labels: str = "own", episodes: int = 5,
+                 quality: str = "medium", targets: Sequence[float] | None = None, dqn: str | None = None) -> None:
+        self.options = {"rules": list(rules), "labels": labels, "episodes": episodes, "quality": quality,
+                        "targets": targets, "dqn": dqn}
+
+    @classmethod
+    def recognizes(cls, payload: dict[str, Any]) -> bool:
+        return super().recognizes(payload) or {"online", "offline", "checkpoints"} <= set(payload)
+
+    def run(self, runs: list[Run], seeds: list[int]) -> dict[str, Any]:
+        if len(runs) != 1:
+            raise ValueError(f"the online evaluation plays one run (its checkpoints: training seeds), got {len(runs)}")
+        (run,) = runs
+        run.data.setup("validate")
+        return {"configs": [run.config], **evaluate_online_mdp(run.data, run.checkpoints, seeds=seeds, **self.options)}
+
+    markdown = staticmethod(online_mdp_markdown)
+    figure = staticmethod(online_mdp_figure)

@@ -28,9 +28,9 @@ from icprl_lightning.validation import consumed_kinds
 
 
 def is_bandit_data(datamodule: PreferenceData) -> bool:
-    """Dueling-bandit data (weak regret, ``bandit_suites``) rather than an MDP family's (rollouts); known from the
+    """Dueling-bandit data (weak regret, ``duels``) rather than an MDP family's (rollouts); known from the
     evaluations the DataModule declares, before its data exists."""
-    return "bandit_suites" in datamodule.offers
+    return "duels" in datamodule.offers
 
 
 def _sizes(kind: str, state_dim: int, discrete: bool, actions: int, length: int) -> str:

@@ -146,9 +146,9 @@ def reward_bayes(data_config: str | Path, data_root: str | None = None) -> dict[
     labeled.prepare_data()
     rewarded.prepare_data()
     mixing = {q: c["mixing"] for q, c in labeled.load().manifest["info"]["calibration"].items()}
-    suites = {s.quality: s for s in labeled.evaluation_suites()}
-    rewards = {s.quality: s.context.rewards for s in rewarded.evaluation_suites()}
-    pairs = labeled.heldout_pairs()
+    suites = {s.quality: s for s in labeled.held_out("rollouts")}
+    rewards = {s.quality: s.context.rewards for s in rewarded.held_out("rollouts")}
+    pairs = labeled.held_out("pair_accuracy")
     out: dict[str, dict[str, dict[str, float]]] = {e: {} for e in EVIDENCE}
     for q in QUALITIES:
         context = suites[q].context

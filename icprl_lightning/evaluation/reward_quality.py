@@ -8,7 +8,7 @@ averaged over the held-out pairs of a checkpoint, then reported as mean ± sem o
 three measures of R_ψ(s, a | ξ⁺, ξ⁻) (paper section 5.3, eq. (L_R^T)), per context quality:
 
 * ``other_pair_accuracy``: R_ψ conditioned on another pair of the same held-out task orders the scored
-  pair as its label does (``heldout_pairs()``): the scored transitions are not in view, the fair test.
+  pair as its label does (``held_out("pair_accuracy")``): the scored transitions are not in view, the fair test.
 * ``own_pair_accuracy``: R_ψ scores the context's own pair (the paper's form) under the checkpoint's
   reading rule: causal for ``pair_source=context_causal`` (step h sees the context's steps < h; still
   leaky through the states, see ``models/estimator.py``), the whole context otherwise. Leaky by
@@ -116,14 +116,14 @@ def reward_quality(data_config: str | Path, checkpoints: Sequence[str | Path], d
     rewarded = tprl_datamodule(data_config, "reward_trajectory", data_root)
     labeled.prepare_data()
     rewarded.prepare_data()
-    suites = {s.quality: s.context for s in labeled.evaluation_suites()}
+    suites = {s.quality: s.context for s in labeled.held_out("rollouts")}
     rewards = {}
-    for oracle in rewarded.evaluation_suites():
+    for oracle in rewarded.held_out("rollouts"):
         if not torch.equal(oracle.context.states, suites[oracle.quality].behavior_states):
             raise ValueError(f"--data-config {data_config}: the reward and preference datasets' {oracle.quality} "
                              "behavior trajectories differ (regenerate both from one config)")
         rewards[oracle.quality] = oracle.context.rewards
-    pairs = labeled.heldout_pairs()
+    pairs = labeled.held_out("pair_accuracy")
     per_checkpoint = [{"checkpoint": path, **evaluate(model, pairs, suites, rewards)} for path, model in models]
     summary: dict[str, dict[str, dict[str, float | None]]] = {}
     for q in QUALITIES:

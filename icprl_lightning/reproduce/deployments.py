@@ -105,21 +105,12 @@ def deploy_ad(table: Any, evaluation: Any, checkpoints: dict[str, list[str]], ou
     return {"out": f"{out}.json", "runs": list(runs), "episodes": evaluation.episodes}
 
 
-def redraw_offline(source: Path) -> None:
-    """The figures of an ``icprl evaluate`` JSON (a built-in table's, or a registered evaluation's own)."""
+def redraw(source: Path) -> None:
+    """The figures of a results JSON, drawn by the evaluation it is the results of (``evaluation_of``)."""
     from icprl_lightning.evaluation.base import evaluation_of
-    from icprl_lightning.evaluation.report import write_figures
 
     payload = json.loads(source.read_text())
-    registered = evaluation_of(payload)
-    if registered is not None:
-        registered.figure(payload, source.with_suffix(".png"))
-    else:
-        write_figures(payload, source.with_suffix(""))
-
-
-def redraw_ad(source: Path) -> None:
-    """The figure of an ``icprl evaluate ad`` JSON."""
-    from icprl_lightning.evaluation.ad_command import ad_figure
-
-    ad_figure(json.loads(source.read_text()), source.with_suffix(".png"))
+    kind = evaluation_of(payload)
+    if kind is None:
+        raise ValueError(f"{source} is the results of no registered evaluation: nothing to redraw")
+    kind.figure(payload, source.with_suffix(".png"))

@@ -30,7 +30,7 @@ from typing import Any
 
 import yaml
 
-from icprl_lightning.evaluation.base import KIND, evaluation_of
+from icprl_lightning.evaluation.base import evaluation_of
 from icprl_lightning.io import payloads_in, save_figure, write_atomic
 from icprl_lightning.reproduce.claims import CLAIMS, claims_table, full_table
 from icprl_lightning.reproduce.statistics import (
@@ -66,10 +66,9 @@ PROFILES = {"darkroom_ipref": "darkroom_ipref", "metaworld_heldout": "metaworld_
 
 
 def is_evaluation(payload: Any) -> bool:
-    """An ``icprl evaluate`` JSON (or ``icprl evaluate ad``'s) of the built-in tables: its rows name the run that gave
-    the reference rows (a registered evaluation's JSON names its kind instead, ``evaluation/base.py``)."""
-    return (isinstance(payload, dict) and "reference_rows_from" in payload and isinstance(payload.get("results"), dict)
-            and KIND not in payload)
+    """A results JSON of the built-in tables with reference rows (``rollouts``, ``duels``, ``ad``): the ones whose
+    summary page bootstraps intervals over training seeds × held-out tasks."""
+    return getattr(evaluation_of(payload), "name", None) in ("rollouts", "duels", "ad")
 
 
 def number(value: float) -> str:
@@ -183,13 +182,6 @@ def command_of(table: str) -> str:
 def evaluations_in(folder: Path) -> list[tuple[str, dict[str, Any]]]:
     """The ``icprl evaluate`` (and ``icprl evaluate ad``) JSONs of ``folder``, by stem."""
     return payloads_in(folder, is_evaluation)
-
-
-def online_bandit_in(folder: Path) -> list[tuple[str, dict[str, Any]]]:
-    """The JSONs of ``icprl evaluate online`` on a dueling bandit in ``folder``, by stem."""
-    from icprl_lightning.evaluation.online_bandit import is_online_bandit_payload
-
-    return payloads_in(folder, is_online_bandit_payload)
 
 
 def summary_page(folder: Path) -> str | None:
@@ -318,19 +310,10 @@ def pretrained_table() -> str:
 
 
 def folder_tables(folder: Path) -> dict[Path, str]:
-    """``<name>.md`` of every results JSON in ``folder``, from the JSON alone: the tables ``icprl evaluate`` (and its
-    ``ad`` mode) printed, the regrets of ``icprl evaluate online`` on a bandit, a registered evaluation's own
-    ``markdown`` (``evaluation/base.py``)."""
-    from icprl_lightning.evaluation.ad_command import ad_markdown, is_ad_payload
-    from icprl_lightning.evaluation.online_bandit import online_bandit_markdown
-    from icprl_lightning.evaluation.report import markdown_tables
-
-    pages = {folder / f"{name}.md": (ad_markdown if is_ad_payload(payload) else markdown_tables)(payload)
-             for name, payload in evaluations_in(folder)}
-    pages.update({folder / f"{name}.md": online_bandit_markdown(payload) for name, payload in online_bandit_in(folder)})
-    pages.update({folder / f"{name}.md": evaluation_of(payload).markdown(payload)
-                  for name, payload in payloads_in(folder, lambda p: isinstance(p, dict) and KIND in p)})
-    return pages
+    """``<name>.md`` of every results JSON in ``folder``, from the JSON alone, by the ``markdown`` of the evaluation
+    it is the results of (``evaluation/base.py``: built-in or registered)."""
+    return {folder / f"{name}.md": evaluation_of(payload).markdown(payload)
+            for name, payload in payloads_in(folder, evaluation_of)}
 
 
 def rendered(root: Path = RESULTS) -> dict[Path, str]:

@@ -64,7 +64,7 @@ class Evaluation:
         return out_dir / f"{table.name}{self.suffix}.json"
 
     def redraw(self, source: Path) -> None:
-        deployments.redraw_offline(source)
+        deployments.redraw(source)
 
 
 @dataclass(frozen=True)
@@ -123,7 +123,7 @@ class ADEvaluation:
         return out_dir / f"{table.name}{self.suffix}.json"
 
     def redraw(self, source: Path) -> None:
-        deployments.redraw_ad(source)
+        deployments.redraw(source)
 
 
 @dataclass(frozen=True)

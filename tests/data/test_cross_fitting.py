@@ -213,7 +213,7 @@ def test_cross_fitted_checkpoint_round_trips_without_the_reward_gen_files(full, 
     batch = full.train_dataloader().dataset[list(range(12))]
     torch.testing.assert_close(loaded.labeled_trajectories(batch)[0].rewards,
                                model.eval().labeled_trajectories(batch)[0].rewards)
-    ctx = next(s for s in full.evaluation_suites() if s.quality == "low").context
+    ctx = next(s for s in full.held_out("rollouts") if s.quality == "low").context
     agent.reset(ctx)
     assert agent.act(ctx.behavior_states[:, 0]).shape == (ctx.batch_size,)
 

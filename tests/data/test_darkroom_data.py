@@ -70,7 +70,7 @@ def test_preference_batches_carry_no_reward_goal_or_advantage(tiny_ipref):
                       "optimal_actions", "pair.states", "pair.actions", "pair.alt_actions", "pair.preferred", "task"}
     for key in served:
         assert not any(word in key for word in FORBIDDEN), key
-    for suite in tiny_ipref.evaluation_suites():
+    for suite in tiny_ipref.held_out("rollouts"):
         assert not any(any(w in f for w in FORBIDDEN) for f in vars(suite.context)), suite.quality
 
 

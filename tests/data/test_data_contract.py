@@ -43,15 +43,15 @@ SIZES = dict(backbone=TransformerConfig(n_layer=1, n_embd=8, n_head=2))
 
 # setting -> (kind, family type, has_folds, has_query_labels, evaluations, per-task argument names)
 DECLARATIONS = {
-    StepPreferences: ("step_preference", TaskFamily, True, True, {"evaluation_suites"},
+    StepPreferences: ("step_preference", TaskFamily, True, True, {"rollouts"},
                       ("trajectories_per_task", "val_trajectories_per_task")),
-    RewardContexts: ("reward", TaskFamily, True, True, {"evaluation_suites"},
+    RewardContexts: ("reward", TaskFamily, True, True, {"rollouts"},
                      ("trajectories_per_task", "val_trajectories_per_task")),
-    TrajectoryPairs: ("trajectory_preference", TaskFamily, True, True, {"evaluation_suites", "heldout_pairs"},
+    TrajectoryPairs: ("trajectory_preference", TaskFamily, True, True, {"rollouts", "pair_accuracy"},
                       ("trajectories_per_task", "val_trajectories_per_task")),
-    RewardTrajectories: ("reward_trajectory", TaskFamily, True, True, {"evaluation_suites"},
+    RewardTrajectories: ("reward_trajectory", TaskFamily, True, True, {"rollouts"},
                          ("trajectories_per_task", "val_trajectories_per_task")),
-    BanditDuels: ("step_preference", LinearDuelingBanditFamily, False, False, {"bandit_suites"},
+    BanditDuels: ("step_preference", LinearDuelingBanditFamily, False, False, {"duels"},
                   ("contexts_per_problem", "val_contexts_per_problem")),
 }
 
@@ -98,10 +98,10 @@ def test_the_generated_datamodule_implements_the_contract_and_offers_what_its_se
 def test_the_recorded_datamodule_implements_the_contract_and_offers_no_evaluation(tmp_path):
     dm = RecordedPreferenceDataModule(str(_recorded_steps(tmp_path)), batch_size=2, pairs=True)
     assert isinstance(dm, PreferenceData) and missing_members(dm) == []
-    assert dm.offers == frozenset() and dm.evaluation_suites() == [] and not is_bandit_data(dm)
-    for evaluation in ("bandit_suites", "heldout_pairs"):
+    assert dm.offers == frozenset() and not is_bandit_data(dm)
+    for evaluation in ("rollouts", "duels", "pair_accuracy"):
         with pytest.raises(ValueError, match=f"recorded data offers no {evaluation}"):
-            getattr(dm, evaluation)()
+            dm.held_out(evaluation)
 
 
 def test_an_object_outside_the_contract_is_named_with_what_it_lacks():
@@ -145,26 +145,29 @@ class GoalPairs(TrajectoryPairs):
     """A user's setting: T-PRL pairs for DarkRoom only, offering held-out pairs but no rollouts."""
 
     family_type = DarkRoomFamily
-    evaluations = frozenset({"heldout_pairs"})
+    evaluations = frozenset({"pair_accuracy"})
 
 
 def test_a_new_settings_declarations_take_effect_without_touching_the_datamodule(tmp_path):
     dm = PreferenceDataModule(DarkRoomFamily(), GoalPairs(), root_dir=str(tmp_path / "data"))
-    assert dm.offers == {"heldout_pairs"} and dm.evaluation_suites() == []
+    assert dm.offers == {"pair_accuracy"}
+    with pytest.raises(ValueError, match="offers no rollouts"):
+        dm.held_out("rollouts")
     assert pairing_errors(object(), dm, [HeldOutPairAccuracyCallback()]) == []
     (error,) = pairing_errors(object(), dm, [InContextRolloutCallback()])
-    assert "InContextRolloutCallback reads evaluation_suites()" in error
+    assert "InContextRolloutCallback reads the held-out rollouts" in error
     with pytest.raises(HyperparameterError, match="family must be a DarkRoomFamily for setting GoalPairs"):
         PreferenceDataModule(LinearDuelingBanditFamily(), GoalPairs(), root_dir=str(tmp_path / "data"))
 
 
 def test_an_evaluation_the_setting_does_not_offer_is_refused_naming_what_offers_it(tmp_path):
     darkroom = _generated(StepPreferences, tmp_path)
-    with pytest.raises(ValueError, match="StepPreferences data offers no bandit_suites .*BanditDuels"):
-        darkroom.bandit_suites()
-    with pytest.raises(ValueError, match="RewardTrajectories data offers no heldout_pairs .*trajectory_preference"):
-        _generated(RewardTrajectories, tmp_path).heldout_pairs()
-    assert _generated(BanditDuels, tmp_path).evaluation_suites() == []
+    with pytest.raises(ValueError, match="StepPreferences data offers no duels .*BanditDuels"):
+        darkroom.held_out("duels")
+    with pytest.raises(ValueError, match="RewardTrajectories data offers no pair_accuracy .*trajectory_preference"):
+        _generated(RewardTrajectories, tmp_path).held_out("pair_accuracy")
+    with pytest.raises(ValueError, match="BanditDuels data offers no rollouts"):
+        _generated(BanditDuels, tmp_path).held_out("rollouts")
 
 
 @pytest.mark.parametrize(("kwargs", "words"), [
@@ -178,14 +181,14 @@ def test_what_a_setting_does_not_declare_is_refused_by_name(kwargs, words, tmp_p
 
 # ---- callbacks declare what they read ----------------------------------------------------------------------
 
-@pytest.mark.parametrize(("callback", "evaluation"), [(InContextRolloutCallback(), "evaluation_suites"),
-                                                      (BanditRegretCallback(), "bandit_suites"),
-                                                      (HeldOutPairAccuracyCallback(), "heldout_pairs")],
+@pytest.mark.parametrize(("callback", "evaluation"), [(InContextRolloutCallback(), "rollouts"),
+                                                      (BanditRegretCallback(), "duels"),
+                                                      (HeldOutPairAccuracyCallback(), "pair_accuracy")],
                          ids=lambda x: type(x).__name__ if not isinstance(x, str) else x)
 def test_each_evaluation_callback_declares_what_it_reads(callback, evaluation, tmp_path):
     assert isinstance(callback, ReadsData) and callback.requires_data == (evaluation,)
-    offering = {"evaluation_suites": StepPreferences, "bandit_suites": BanditDuels,
-                "heldout_pairs": TrajectoryPairs}[evaluation]
+    offering = {"rollouts": StepPreferences, "duels": BanditDuels,
+                "pair_accuracy": TrajectoryPairs}[evaluation]
     for setting_cls in DECLARATIONS:
         errors = pairing_errors(object(), _generated(setting_cls, tmp_path), [callback])
         assert (errors == []) == (evaluation in setting_cls.evaluations), (setting_cls, errors)
@@ -194,11 +197,11 @@ def test_each_evaluation_callback_declares_what_it_reads(callback, evaluation, t
 
 def test_a_users_callback_is_checked_by_its_declaration_not_its_name(tmp_path):
     class MyRegretPlot(L.Callback):
-        requires_data = ("bandit_suites",)
+        requires_data = ("duels",)
 
     darkroom = _generated(StepPreferences, tmp_path)
     (error,) = pairing_errors(object(), darkroom, [MyRegretPlot(), L.Callback()])
-    assert error.startswith("MyRegretPlot reads bandit_suites() of the data") and "BanditDuels" in error
+    assert error.startswith("MyRegretPlot reads the held-out duels of the data") and "BanditDuels" in error
     assert pairing_errors(object(), _generated(BanditDuels, tmp_path), [MyRegretPlot()]) == []
 
 

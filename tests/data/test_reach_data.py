@@ -144,7 +144,7 @@ def test_preference_batches_carry_no_reward_goal_or_advantage(ipref):
 
 
 def test_evaluation_suites_report_success_and_normalize_per_goal(ipref):
-    suites = ipref.evaluation_suites()
+    suites = ipref.held_out("rollouts")
     assert [(s.env_name, s.quality) for s in suites] == [("metaworld", q) for q in ("low", "medium", "high")]
     suite = suites[2]
     per_task = ipref.load().manifest["info"]["test_reference_per_task"]

@@ -147,7 +147,7 @@ def test_preference_batches_and_eval_contexts_are_reward_free(tprl):
     assert stored and not any(w in f for f in stored for w in FORBIDDEN)  # nothing on disk either
     without_labels = reach_data("trajectory_preference", root_dir=tprl.root_dir, **TINY)
     assert served_fields(next(iter(without_labels.val_dataloader()))) == {*(f"context.{k}" for k in PAIR), "task"}
-    for suite in tprl.evaluation_suites():
+    for suite in tprl.held_out("rollouts"):
         ctx = suite.context
         assert isinstance(ctx, TrajectoryPreferenceContext) and ctx.behavior_states.shape == (4, H, 39)
         assert not any(any(w in f for w in FORBIDDEN) for f in vars(ctx)), suite.quality
@@ -196,11 +196,11 @@ def test_reward_kind_holds_the_same_trajectories_with_true_rewards(tprl, tprl_re
     assert served_fields(batch) == {f"trajectory_{side}.{k}" for side in "ab" for k in ("states", "actions", "rewards")
                                     } | {"task"}
     assert torch.all(batch.trajectory_a.rewards < 0)  # −‖tcp − goal‖
-    suite = tprl_rewards.evaluation_suites()[0]
+    suite = tprl_rewards.held_out("rollouts")[0]
     assert isinstance(suite.context, RewardTrajectoryContext)
     np.testing.assert_array_equal(suite.context.states.numpy(), rew["eval_low"]["behavior_states"])
     with pytest.raises(ValueError, match="trajectory_preference"):
-        tprl_rewards.heldout_pairs()
+        tprl_rewards.held_out("pair_accuracy")
 
 
 def test_other_pairs_and_heldout_pairs_come_from_the_same_task(tprl):
@@ -209,7 +209,7 @@ def test_other_pairs_and_heldout_pairs_come_from_the_same_task(tprl):
     batch = next(iter(tprl.train_dataloader()))
     for own, other in zip(batch.context.states_b.numpy(), batch.pair.states_b.numpy(), strict=True):
         assert not np.array_equal(own, other) and task_of[own.tobytes()] == task_of[other.tobytes()]
-    held = tprl.heldout_pairs()
+    held = tprl.held_out("pair_accuracy")
     assert list(held) == ["low", "medium", "high"]
     split = tprl.load()["eval_high"]
     np.testing.assert_array_equal(held["high"].pair.states_b[0].numpy(), split["states_b"][1])
@@ -267,7 +267,7 @@ def test_icrg_config_runs_and_its_checkpoint_deploys(root, reward_gen_ckpt, tmp_
     path = tmp_path / "icrg.ckpt"
     cli.trainer.save_checkpoint(path)
     agent = load_agent(path)
-    context = cli.datamodule.evaluation_suites()[0].context
+    context = cli.datamodule.held_out("rollouts")[0].context
     agent.reset(context)
     action = agent.act(context.behavior_states[:, 0])
     assert isinstance(action, torch.Tensor) and action.shape == (4, 4) and action.dtype == torch.float32

@@ -178,7 +178,7 @@ def test_import_converts_reorders_task_major_and_splits_by_task(tmp_path):
             np.testing.assert_array_equal(split[k], arrays[k][rows])
     assert sorted(np.concatenate([s["source_row"] for s in stored.values()])) == list(range(len(arrays["states"])))
     assert (dm.state_dim, dm.action_spec.size, dm.action_spec.discrete, dm.context_length) == (2, 5, True, T)
-    assert dm.context_kind == "step_preference" and dm.evaluation_suites() == []
+    assert dm.context_kind == "step_preference" and dm.offers == frozenset()
     other = tmp_path / "again"
     import_preferences(arrays, other, n_actions=N_ACTIONS, val_fraction=0.2, seed=3)  # same seed, same bytes
     assert [f["sha256"] for f in json.loads((other / "manifest.json").read_text())["files"].values()] == \

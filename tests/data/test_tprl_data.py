@@ -63,7 +63,7 @@ def test_batches_and_eval_contexts_carry_no_reward(tprl):
     for key in served:
         assert not any(word in key for word in FORBIDDEN), key
     assert not any("reward" in f for f in tprl.load().manifest["files"])  # nothing on disk either
-    for suite in tprl.evaluation_suites():
+    for suite in tprl.held_out("rollouts"):
         ctx = suite.context
         assert isinstance(ctx, TrajectoryPreferenceContext) and ctx.behavior_states.shape == (40, 100, 2)
         assert not any(any(w in f for w in FORBIDDEN) for f in vars(ctx)), suite.quality
@@ -91,7 +91,7 @@ def test_reward_kind_holds_the_same_trajectories_with_true_rewards(tprl, tprl_re
     batch = next(iter(tprl_rewards.train_dataloader()))
     assert served_fields(batch) == {f"trajectory_{side}.{k}" for side in "ab" for k in ("states", "actions", "rewards")
                                     } | {"task"}
-    suite = tprl_rewards.evaluation_suites()[0]
+    suite = tprl_rewards.held_out("rollouts")[0]
     np.testing.assert_array_equal(suite.context.states.numpy(), rew["eval_low"]["behavior_states"])
 
 
@@ -103,7 +103,7 @@ def test_other_pairs_and_heldout_pairs_come_from_the_same_task(tprl):
         i = int(np.flatnonzero((states == ctx).all(axis=(1, 2)))[0])
         j = int(np.flatnonzero((states == other).all(axis=(1, 2)))[0])
         assert i != j and data["task_index"][i] == data["task_index"][j]
-    held = tprl.heldout_pairs()["medium"]
+    held = tprl.held_out("pair_accuracy")["medium"]
     split = tprl.load()["eval_medium"]
     np.testing.assert_array_equal(held.context.states_b.numpy(), split["states_b"])
     np.testing.assert_array_equal(held.pair.states_b[0].numpy(), split["states_b"][1])  # next context, same goal

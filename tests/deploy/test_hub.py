@@ -268,7 +268,7 @@ def _shipped_bandit_suite(tmp_path, n_problems: int):
                      val_contexts_per_problem=1, pairs=False, eval_sources=["uniform"], root_dir=str(tmp_path),
                      n_eval_problems=n_problems, progress=False, batch_size=1)
     dm.prepare_data()
-    return dm.bandit_suites()[0]
+    return dm.held_out("duels")[0]
 
 
 def _weak_regret(suite) -> np.ndarray:
@@ -352,7 +352,7 @@ def test_each_shipped_mdp_model_returns_what_its_card_says(name, tmp_path):
     (tmp_path / "config.yaml").write_text(yaml.safe_dump({"data": config["training_config"]["data"]}))
     dm = datamodule_from_config(tmp_path / "config.yaml", root_dir=str(tmp_path / "data"), progress=False)
     dm.prepare_data()
-    suite = dm.evaluation_suites()[0]
+    suite = dm.held_out("rollouts")[0]
     payload = json.loads((directory / RESULTS).read_text())
     metric = main_metric(payload)
     row = payload["results"][trained_rows(payload)[0]][suite.quality]

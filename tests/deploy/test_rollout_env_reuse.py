@@ -48,12 +48,12 @@ def _same_episodes(suite, agent) -> dict[int, dict[str, np.ndarray]]:
 
 
 def test_a_reused_darkroom_env_gives_the_episodes_of_fresh_ones(tiny_ipref):
-    suite = tiny_ipref.evaluation_suites()[0]
+    suite = tiny_ipref.held_out("rollouts")[0]
     _same_episodes(suite, HashPolicy(n_actions=5))
 
 
 def test_a_reused_env_must_match_the_suite(tiny_ipref):
-    low, high = tiny_ipref.evaluation_suites()[0], tiny_ipref.evaluation_suites()[2]
+    low, high = tiny_ipref.held_out("rollouts")[0], tiny_ipref.held_out("rollouts")[2]
     wrong = type(low)(**{**low.__dict__, "task_index": np.concatenate([low.task_index, low.task_index])})
     with suite_env(high) as env, pytest.raises(ValueError, match="env: .* envs for a suite of"):
         rollout_in_context(HashPolicy(n_actions=5), wrong, env=env)
@@ -65,6 +65,6 @@ def test_a_reused_reach_env_gives_the_episodes_of_fresh_ones(tmp_path):
                     trajectories_per_task=2, val_trajectories_per_task=1, eval_contexts_per_task=2,
                     calibration_episodes=2, reference_episodes=2, num_workers=0, progress=False, batch_size=2)
     dm.prepare_data()
-    suite = dm.evaluation_suites()[0]
+    suite = dm.held_out("rollouts")[0]
     fresh = _same_episodes(suite, HashPolicy(action_dim=4))
     assert not np.array_equal(fresh[0]["return"], fresh[1]["return"])  # the seed moves the pucks: a real check

@@ -16,7 +16,6 @@ from icprl_lightning.commands import evaluate as command
 from icprl_lightning.commands import run_cli
 from icprl_lightning.commands.evaluate import main
 from icprl_lightning.data import PreferenceDataModule
-from icprl_lightning.evaluation import command as evaluation_tables
 from icprl_lightning.evaluation.pairing import run_datamodule
 from icprl_lightning.evaluation.report import aligned_tables
 from icprl_lightning.methods.dpt import DPTModule
@@ -162,7 +161,7 @@ def test_evaluate_prints_its_tables_and_writes_beside_the_run_by_default(tmp_pat
     checkpoint = _save(ICPOModule(state_dim=0, action_dim=20, discrete=True, max_context=200, **TINY),
                        run_dir / "checkpoints" / "last.ckpt")
     # both runs in the same second
-    monkeypatch.setattr(evaluation_tables.time, "strftime", lambda fmt: "20250101-000000")
+    monkeypatch.setattr(command.time, "strftime", lambda fmt: "20250101-000000")
     payload = main(["--seeds", "0", "--run", f"ICPO={config}:{checkpoint}"])
     out = capsys.readouterr().out
     written = run_dir / "eval" / "20250101-000000.json"  # the default --out: <run dir>/eval/<date-time>

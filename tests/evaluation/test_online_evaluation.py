@@ -43,7 +43,7 @@ def _agent(max_context: int = 100, seed: int = 0) -> OnlineAgent:
 
 @pytest.mark.parametrize("labels", ["own", "flipped", "random"])
 def test_online_episodes_ask_the_oracle_at_the_agents_own_states(tiny_ipref, labels):
-    suite = tiny_ipref.evaluation_suites()[0]
+    suite = tiny_ipref.held_out("rollouts")[0]
     agent = _agent()
     # a near-deterministic teacher, so that the stored label is the sign of A*(s, a) − A*(s, a')
     result = online_mdp.online_episodes(agent, tiny_ipref.family, suite, BradleyTerryAnnotator(0.01), episodes=2,

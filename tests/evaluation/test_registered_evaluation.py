@@ -22,7 +22,7 @@ class CountContexts(HeldOutEvaluation):
     name = "count_contexts"
 
     def run(self, runs, seeds):
-        return {"results": {run.name: {s.quality: s.context.batch_size for s in run.data.evaluation_suites()}
+        return {"results": {run.name: {s.quality: s.context.batch_size for s in run.data.held_out("rollouts")}
                             for run in runs}}
 
     @staticmethod
@@ -79,3 +79,24 @@ def test_an_experiment_file_turns_evaluation_and_options_into_the_commands_flags
 def test_register_evaluation_takes_only_an_evaluation_class():
     with pytest.raises(TypeError, match="register_evaluation"):
         register_evaluation(dict)
+
+
+BUILT_IN = {"rollouts": "darkroom_ipref/darkroom_ipref.json", "duels": "bandit/bandit.json",
+            "online": "online_darkroom_uniform/online_darkroom_uniform.json",
+            "online_duels": "online_bandit/online_bandit_active.json", "ad": "ad_darkroom/ad_darkroom.json",
+            "pair_accuracy": None}
+
+
+def test_the_six_built_in_kinds_are_registered_evaluations_each_in_its_own_file():
+    kinds = {name: EVALUATIONS.get(name) for name in BUILT_IN}
+    assert all(issubclass(kind, HeldOutEvaluation) and kind.name == name for name, kind in kinds.items())
+    assert len({kind.__module__ for kind in kinds.values()}) == len(BUILT_IN)
+
+
+@pytest.mark.parametrize("name", [n for n, path in BUILT_IN.items() if path])
+def test_each_committed_results_json_is_read_by_its_own_kind_alone(name):
+    from icprl_lightning.untrusted import read_json
+
+    payload = read_json(f"docs/results/{BUILT_IN[name]}", "results")
+    assert evaluation_of(payload) is EVALUATIONS.get(name)
+    assert [n for n in BUILT_IN if EVALUATIONS.get(n).recognizes(payload)] == [name]

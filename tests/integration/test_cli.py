@@ -95,7 +95,7 @@ def test_fit_saves_config_and_checkpoint_then_validate_and_generate(tmp_path, mo
     assert table["results"]["behavior"]["high"]["return"] == pytest.approx(reference["high"]["behavior_return"])
     assert out.with_suffix(".png").stat().st_size > 0 and "| ICPO |" in out.with_suffix(".md").read_text()
     # the ICPO row is the deployed checkpoint's mean over held-out goals, as the rollout callback measures it
-    suites = {s.quality: s for s in val.datamodule.evaluation_suites()}
+    suites = {s.quality: s for s in val.datamodule.held_out("rollouts")}
     high = rollout_in_context(load_agent(ckpt, seed=0), suites["high"], seed=0)
     assert table["results"]["ICPO"]["high"]["return"] == pytest.approx(summarize(suites["high"], high)["return"])
     # --contexts: every episode keeps its env and episode seed; only the context changes, as each diagnostic states

@@ -62,7 +62,7 @@ def bradley_terry_person(url: str, stop: threading.Event, rng: np.random.Generat
 
 
 def test_a_scripted_person_answers_the_online_agent_through_the_page(tiny_ipref, tmp_path):
-    suite = tiny_ipref.evaluation_suites()[0]
+    suite = tiny_ipref.held_out("rollouts")[0]
     person = BrowserAnnotator(str(tmp_path / "online"))
     url, stop = person.start(), threading.Event()
     answering = threading.Thread(target=bradley_terry_person, args=(url, stop, np.random.default_rng(0)))
@@ -93,7 +93,7 @@ def test_a_scripted_person_answers_the_online_agent_through_the_page(tiny_ipref,
 
 def test_a_person_at_the_keyboard_teaches_the_agent(browser, tiny_ipref, tmp_path, screenshots):
     """Chromium answers every question of one episode by keyboard; the page shows the agent's episode and context."""
-    suite = tiny_ipref.evaluation_suites()[0]
+    suite = tiny_ipref.held_out("rollouts")[0]
     person = BrowserAnnotator(str(tmp_path / "online"))
     url = person.start()
     played, out = agent(max_context=2), {}

@@ -75,7 +75,7 @@ def test_eval_splits_hold_behaviour_next_duels_and_rewards_for_evaluation_only(t
     data = tiny_bandit.load()
     test_theta = np.asarray(data["tasks"]["test_theta"])
     assert not np.isin(test_theta, np.asarray(data["tasks"]["train_theta"])).any()
-    suites = tiny_bandit.bandit_suites()
+    suites = tiny_bandit.held_out("duels")
     assert [s.source for s in suites] == list(EVAL_SOURCES)
     for suite in suites:
         split = data[f"eval_{suite.source}"]
@@ -253,7 +253,7 @@ def test_config_runs_under_fast_dev_run_logs_and_prints_weak_regret(tmp_path, ca
     assert set(callback.last_results) == rows
     assert all(set(r) == stats for r in callback.last_results.values())
     logged = cli.trainer.callback_metrics
-    for suite in cli.datamodule.bandit_suites():
+    for suite in cli.datamodule.held_out("duels"):
         # the same numbers from the public Agent again, scored by the WeakRegret metric
         duels = evaluate_duels(cli.model.make_agent(seed=callback.seed), suite, "icpo", callback.seed)
         for name, (first, second) in duels.items():
@@ -303,7 +303,7 @@ def test_icprl_evaluate_writes_weak_and_strong_regret_of_the_run_and_every_basel
     assert list(table["results"]) == ["ICPO", "dts", "maxinp", "bt_thompson", "bayes", "behavior"]
     assert table["reference_rows_from"] == "ICPO" and (table["n_eval_problems"], table["horizon"]) == (5, 200)
     agent = load_agent(checkpoint)
-    for i, suite in enumerate(tiny_bandit.bandit_suites()):
+    for i, suite in enumerate(tiny_bandit.held_out("duels")):
         # per problem, the curve averaged over the two seeds; then mean ± sem over problems
         per_seed = [{name: regret_curves(suite.expected_rewards, pair)
                      for name, pair in evaluate_duels(agent, suite, "ICPO", seed).items()} for seed in (0, 1)]
@@ -360,7 +360,7 @@ def test_icpo_beats_uniform_random_duels_on_held_out_problems(tmp_path):
                    "--trainer.max_epochs", "1", "--trainer.enable_checkpointing", "false",
                    "--trainer.enable_progress_bar", "false", "--trainer.callbacks", "[]",
                    "--trainer.default_root_dir", str(tmp_path), *data])
-    suite = cli.datamodule.bandit_suites()[0]
+    suite = cli.datamodule.held_out("duels")[0]
     cli.model.eval()
     first, second = agent_duels(cli.model.make_agent(), suite.context, np.random.default_rng(0))
     # the trained policy's duels through the Agent are those of its own full-prefix forward pass

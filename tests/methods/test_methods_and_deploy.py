@@ -65,7 +65,7 @@ def icpo_checkpoint(tmp_path_factory, request):
 
 
 def _eval_context(dm, quality="high"):
-    return next(s for s in dm.evaluation_suites() if s.quality == quality).context
+    return next(s for s in dm.held_out("rollouts") if s.quality == quality).context
 
 
 def test_checkpoint_round_trip_cached_equals_uncached(icpo_checkpoint):

@@ -168,7 +168,7 @@ def test_icrg_from_a_causal_reward_gen_labels_causally(tprl, causal_ckpt, tmp_pa
     torch.save(checkpoint, path)
     agent = load_module(path).make_agent(greedy=True)
     assert agent.reward_model.causal
-    ctx = next(s for s in tprl.evaluation_suites() if s.quality == "low").context
+    ctx = next(s for s in tprl.held_out("rollouts") if s.quality == "low").context
     agent.reset(ctx)
     moved = TrajectoryPreferenceContext(ctx.states_a, ctx.actions_a, *_redrawn(ctx.states_b, ctx.actions_b, h),
                                         ctx.preferred, ctx.behavior_states, ctx.behavior_actions)
@@ -202,8 +202,8 @@ def test_quality_command_end_to_end(tprl, causal_ckpt, data_root, tmp_path, caps
     assert out["pair_source"] == "context_causal" and out["causal"] is True
     assert out["checkpoints"] == [str(causal_ckpt)] * 2 and len(out["per_checkpoint"]) == 2
     model = load_module(causal_ckpt)
-    pairs = tprl.heldout_pairs()
-    suites = {s.quality: s.context for s in tprl.evaluation_suites()}
+    pairs = tprl.held_out("pair_accuracy")
+    suites = {s.quality: s.context for s in tprl.held_out("rollouts")}
     for q in ("low", "medium", "high"):
         result = out["per_checkpoint"][0][q]
         assert set(result) == {"other_pair_accuracy", "own_pair_accuracy", "reward_correlation"}
@@ -219,7 +219,7 @@ def test_quality_command_end_to_end(tprl, causal_ckpt, data_root, tmp_path, caps
     # the correlation is against the latent rewards of the same behavior trajectories
     rewards = darkroom_data("reward_trajectory", root_dir=data_root, progress=False, **SETTING)
     rewards.prepare_data()
-    low = next(s for s in rewards.evaluation_suites() if s.quality == "low").context
+    low = next(s for s in rewards.held_out("rollouts") if s.quality == "low").context
     labels = model.reward.label(suites["low"], suites["low"].behavior_states, suites["low"].behavior_actions)
     expected = np.corrcoef(labels.detach().flatten().numpy(), low.rewards.flatten().numpy())[0, 1]
     assert out["per_checkpoint"][1]["low"]["reward_correlation"] == pytest.approx(expected)

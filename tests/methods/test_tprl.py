@@ -288,7 +288,7 @@ def test_icrg_checkpoint_deploys_alone_and_labels_the_behavior_trajectory(tprl, 
     assert isinstance(agent, ICRGAgent)
     assert agent.policy_agent.greedy
     assert not load_agent(path).policy_agent.greedy  # ICRG's own default: sample from T^R
-    ctx = next(s for s in tprl.evaluation_suites() if s.quality == "low").context
+    ctx = next(s for s in tprl.held_out("rollouts") if s.quality == "low").context
     agent.reset(ctx)
     uncached.reset(ctx)
     expected = (model.reward_gen(ctx, ctx.behavior_states, ctx.behavior_actions) - model.reward_gen.reward_mean) \
@@ -314,7 +314,7 @@ def test_dp2t_and_dit_checkpoints_deploy_on_their_contexts(tprl, tprl_rewards, t
         agent = load_agent(_fit_and_save(model, dm, tmp_path / "m.ckpt"), seed=0)
         # each method's own default: DP²T acts by its argmax, DIT samples from T^R (the paper's deployment)
         assert agent.greedy == isinstance(model, DP2TModule)
-        ctx = dm.evaluation_suites()[2].context
+        ctx = dm.held_out("rollouts")[2].context
         agent.reset(ctx)
         assert agent.act(ctx.states[:, 0]).shape == (ctx.batch_size,)
 

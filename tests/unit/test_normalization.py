@@ -93,7 +93,7 @@ def test_fit_start_fits_every_network_once_and_the_agent_keeps_the_statistics(da
     trainer.save_checkpoint(path)
     agent = load_agent(path, seed=0)
     torch.testing.assert_close(agent.policy.normalizer.state_mean, kept)
-    ctx = dm.evaluation_suites()[0].context
+    ctx = dm.held_out("rollouts")[0].context
     agent.reset(ctx)
     assert agent.act(ctx.states[:, 0]).shape == (ctx.batch_size,)
 

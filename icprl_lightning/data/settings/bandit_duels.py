@@ -15,7 +15,7 @@ Splits written to disk (see ``data/store.py``):
 * ``eval_uniform`` / ``eval_dirichlet`` / ``eval_dts``: one context per held-out problem from each
   behaviour policy, plus ``next_actions`` / ``next_alt_actions`` [n, H] (column h − 1 is the duel the
   behaviour policy plays after h comparisons, i.e. its duel h + 1) and ``expected_rewards`` [n, A]. These
-  splits are read only by ``bandit_suites`` (the evaluation); the dataloaders never touch them.
+  splits are read only by ``bandit_suites`` (the ``duels`` evaluation); the dataloaders never touch them.
 
 ``annotator`` (``icprl_lightning.annotators``, e.g. B-Pref's ``ScriptedTeacher``) relabels the
 *pretraining* duels (train and val): it sees each duel's two arms and their expected rewards as utilities
@@ -70,7 +70,7 @@ class BanditDuels(Setting):
     kind = "step_preference"
     family_type = LinearDuelingBanditFamily
     per_task_keys = ("contexts_per_problem", "val_contexts_per_problem")
-    evaluations = frozenset({"bandit_suites"})  # weak regret, not rollouts
+    evaluations = frozenset({"duels"})  # weak regret, not rollouts
     # has_folds and has_query_labels stay False: the val problems are not the training ones, and a bandit has
     # no query states nor optimal-action labels
 

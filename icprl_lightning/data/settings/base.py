@@ -185,15 +185,15 @@ class Setting(ABC):
         return context_fields("step_preference")
 
     def evaluation_suites(self, family: Family, data: StoredDataset) -> list[EvalSuite]:
-        """The held-out in-context rollouts (offered with ``"evaluation_suites"`` in ``evaluations``)."""
+        """The held-out in-context rollouts (offered with ``"rollouts"`` in ``evaluations``)."""
         return []
 
     def bandit_suites(self, family: Family, data: StoredDataset) -> list[BanditSuite]:
-        """The held-out weak-regret evaluations (offered with ``"bandit_suites"`` in ``evaluations``)."""
+        """The held-out weak-regret evaluations (offered with ``"duels"`` in ``evaluations``)."""
         raise NotImplementedError(f"{type(self).__name__} declares no bandit_suites in its evaluations")
 
     def heldout_pairs(self, data: StoredDataset) -> dict[str, ContextSamples]:
-        """Held-out pairs per quality (offered with ``"heldout_pairs"`` in ``evaluations``)."""
+        """Held-out pairs per quality (offered with ``"pair_accuracy"`` in ``evaluations``)."""
         raise NotImplementedError(f"{type(self).__name__} declares no heldout_pairs in its evaluations")
 
 
@@ -215,7 +215,7 @@ class MDPSetting(Setting):
     family_type: ClassVar[type[Family]] = TaskFamily
     has_folds: ClassVar[bool] = True
     has_query_labels: ClassVar[bool] = True
-    evaluations: ClassVar[frozenset[str]] = frozenset({"evaluation_suites"})
+    evaluations: ClassVar[frozenset[str]] = frozenset({"rollouts"})
 
     def __init__(self, trajectories_per_task: int = 100, val_trajectories_per_task: int = 4,
                  eval_contexts_per_task: int = 5, quality_targets: tuple[float, float, float] = (0.2, 0.4, 0.8),

@@ -87,7 +87,7 @@ class TrajectoryPairs(MDPSetting):
     """T-PRL pairs; see the module docstring. The other arguments as ``MDPSetting``."""
 
     kind = "trajectory_preference"
-    evaluations = frozenset({"evaluation_suites", "heldout_pairs"})
+    evaluations = frozenset({"rollouts", "pair_accuracy"})
 
     stores_labels = True  # False: the kind keeps the true rewards instead (``RewardTrajectories``)
     oracle_advantages = False  # RewardTrajectories only: also keep each action's A*
@@ -177,7 +177,7 @@ class RewardTrajectories(TrajectoryPairs):
     """
 
     kind = "reward_trajectory"
-    evaluations = frozenset({"evaluation_suites"})  # no labels: no held-out pairs to order
+    evaluations = frozenset({"rollouts"})  # no labels: no held-out pairs to order
     stores_labels = False
 
     def __init__(self, oracle_advantages: bool = False, **kwargs: Any) -> None:
