@@ -153,5 +153,3 @@ class BanditDuels(PairSource):
 
 VIEWS: dict[str, type[PairSource]] = {"darkroom_steps": DarkRoomSteps, "darkroom_trajectories": DarkRoomTrajectories,
                                       "reach_trajectories": ReachTrajectories, "bandit_duels": BanditDuels}
-# the fields a view keeps for the page and the agreement, never exported into a context
-PRIVILEGED = ("goal", "utility_first", "utility_second", "features")
