@@ -297,10 +297,14 @@ def check_writable(path: str | Path) -> None:
     except FileNotFoundError:
         return
     if not (stat.S_ISREG(mode) or stat.S_ISLNK(mode)):
-        kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
-                else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a special file")
-        raise NotReplaceableError(f"{path} is {kind}, not a file; refusing to write to it; remove it or choose "
-                                  "another path")
+        raise NotReplaceableError(f"{path} is {file_kind(mode)}, not a file; refusing to write to it; remove it or "
+                                  "choose another path")
+
+
+def file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, from its ``st_mode``, for an error message."""
+    return ("a directory" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a special file")
 
 
 def write_atomic(path: str | Path, content: bytes | str | Callable[[BinaryIO], Any]) -> Path:
