@@ -11,11 +11,15 @@ on training problems only (``tuning.py``).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from icprl_lightning.families.dueling_bandit.bt_posterior import BradleyTerryPosterior, check_duels, win_counts
 from icprl_lightning.validation import check_int
+
+if TYPE_CHECKING:
+    from icprl_lightning.families.dueling_bandit.dts import DoubleThompsonSampling
 
 Duels = tuple[np.ndarray, np.ndarray]
 
@@ -86,12 +90,13 @@ class LinearDuelingLearner(ABC):
         """The next duel of every problem: ``(first [P], second [P])`` int64 arm indices."""
 
 
-def run_online(learner: LinearDuelingLearner, preference_matrix: np.ndarray, horizon: int,
+def run_online(learner: LinearDuelingLearner | DoubleThompsonSampling, preference_matrix: np.ndarray, horizon: int,
                rng: np.random.Generator, recommend: bool = False) -> dict[str, np.ndarray]:
-    """Play ``horizon`` rounds; labels y ~ Bernoulli(``preference_matrix[p, first, second]``) from ``rng``.
+    """Play ``horizon`` rounds; labels y ~ Bernoulli(``preference_matrix[p, first, second]``) from ``rng``, drawn
+    after each ``select`` (for DTS, ``dts.run_dts``, the same generator as its own draws).
 
     ``preference_matrix`` is ``[P, A, A]`` (``LinearDuelingBanditFamily.preference_matrix``); returns
-    ``{"arms_first", "arms_second": int64 [P, H], "preferred": uint8 [P, H]}`` like ``dts.run_dts`` and, with
+    ``{"arms_first", "arms_second": int64 [P, H], "preferred": uint8 [P, H]}`` and, with
     ``recommend``, ``"recommended"`` int64 [P, H]: the learner's ``recommend``-ed arm after answer h.
     """
     check_int("run_online", "horizon", horizon, 1)
