@@ -84,7 +84,7 @@ class DoubleThompsonSampling:
         """Record one duel per problem; ``preferred[p] = 1`` means ``first[p]`` won."""
         first = self._check_arms("first", first)
         second = self._check_arms("second", second)
-        won = self._check_labels(preferred, (self.n_problems,))
+        won = self._check_labels(preferred, self.n_problems)
         winner = np.where(won, first, second)
         loser = np.where(won, second, first)
         # One duel per problem, so the fancy-indexed targets are distinct and += is exact.
@@ -119,9 +119,9 @@ class DoubleThompsonSampling:
         copeland += 0.5 * self.rng.random((self.n_problems, self.n_arms))
         return np.where(candidates, copeland, -np.inf).argmax(axis=-1)
 
-    def _check_arms(self, name: str, arms: np.ndarray, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    def _check_arms(self, name: str, arms: np.ndarray) -> np.ndarray:
         arms = np.asarray(arms)
-        shape = (self.n_problems,) if shape is None else shape
+        shape = (self.n_problems,)
         if arms.shape != shape or not np.issubdtype(arms.dtype, np.integer):
             raise ValueError(f"{name} must be an integer array of shape {list(shape)}, "
                              f"got {arms.dtype} {list(arms.shape)}")
@@ -130,10 +130,10 @@ class DoubleThompsonSampling:
         return arms.astype(np.int64, copy=False)
 
     @staticmethod
-    def _check_labels(preferred: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    def _check_labels(preferred: np.ndarray, n_problems: int) -> np.ndarray:
         preferred = np.asarray(preferred)
-        if preferred.shape != shape:
-            raise ValueError(f"preferred must have shape {list(shape)}, got {list(preferred.shape)}")
+        if preferred.shape != (n_problems,):
+            raise ValueError(f"preferred must have shape [{n_problems}], got {list(preferred.shape)}")
         if preferred.size and not np.isin(preferred, (0, 1)).all():
             raise ValueError("preferred must hold 0/1 labels (1 = first arm preferred)")
         return preferred.astype(bool)
