@@ -120,8 +120,8 @@ def run_online(learner: LinearDuelingLearner | DoubleThompsonSampling, preferenc
     return out
 
 
-def prefix_duels(learner: LinearDuelingLearner, arms_first: np.ndarray, arms_second: np.ndarray,
-                 preferred: np.ndarray) -> Duels:
+def prefix_duels(learner: LinearDuelingLearner | DoubleThompsonSampling, arms_first: np.ndarray,
+                 arms_second: np.ndarray, preferred: np.ndarray) -> Duels:
     """The learner's duel after each prefix D_{1:h}, h = 1..H, of a fixed context (each ``[P, H]``).
 
     Returns ``(first, second)`` int64 ``[P, H]``: observe comparison h, then select — as

@@ -94,8 +94,5 @@ def dts_score(family: LinearDuelingBanditFamily, theta: np.ndarray, context: dic
               seed: int) -> dict[str, float]:
     """DTS on the same contexts, as ``evaluation.duels.dts_duels`` plays it."""
     dts = DoubleThompsonSampling(family.n_arms, len(theta), family.dts_alpha, rng=np.random.default_rng(seed))
-    first, second = np.empty_like(context["arms_first"]), np.empty_like(context["arms_first"])
-    for h in range(context["arms_first"].shape[1]):
-        dts.update(context["arms_first"][:, h], context["arms_second"][:, h], context["preferred"][:, h])
-        first[:, h], second[:, h] = dts.select()
-    return offline_score((first, second), family.expected_rewards(theta))
+    duels = prefix_duels(dts, context["arms_first"], context["arms_second"], context["preferred"])
+    return offline_score(duels, family.expected_rewards(theta))
