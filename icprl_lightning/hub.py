@@ -1,28 +1,12 @@
 """A trained model as a directory in the Hugging Face layout, written from a checkpoint and loaded without pickle.
 
-    <dir>/model.safetensors   the method's state dict: tensors only (safetensors), nothing that can run code
-    <dir>/config.json         the method (an allow-listed class path), its hyperparameters as the checkpoint stored
-                              them, the family and setting it was trained on (from the run's config.yaml), the
-                              training command, seed, the package version, the SHA-256 of model.safetensors and
-                              the checkpoint's own checksum (``checkpoints.checksum``)
-    <dir>/README.md           the model card: intended use, training data, results, limitations; its YAML header
-                              is ``huggingface_hub.ModelCardData``, so the Hub reads the directory as a model repo
-    <dir>/results.json        the ``icprl evaluate`` JSON the card's results come from, when one was given
-
-``export_model`` reads the checkpoint as ``checkpoints.py`` reads any (weights-only, allow-listed class, checksum
-and seal verified), stages the directory beside ``out_dir``, loads the staged copy back through ``load_model_dir``
-and only then renames it into place (``io.staged_directory``), so an interrupted export leaves nothing
-half-written and every exported directory has loaded once.
-
-``load_model_dir`` refuses, with a ``ValueError`` (a missing file: ``FileNotFoundError``) naming the file: a
-config.json naming a class that is not a registered method (``registry.py``; never imported), a model.safetensors
-whose SHA-256 differs from config.json's, hyperparameters or tensors that do not match the checkpoint checksum, non-
-finite weights (all checked before the model is built), and tensors whose names or shapes differ from those of the
-model the hyperparameters build (checked before any weight is loaded into it). The weights are read by
-``safetensors`` (a JSON header and raw bytes), never unpickled.
-
-Shipped models are such directories under ``icprl_lightning/pretrained/<name>/``; ``resolve`` turns a short name
-(``"bandit-icpo"``) into its directory, so ``load_agent`` takes a ``.ckpt``, a model directory or a name.
+The layout (model.safetensors, config.json, the README.md model card, results.json) and every check
+``load_model_dir`` makes before building anything are in docs/pretrained.md. The weights are read by
+``safetensors``, never unpickled; a config.json naming a class that is not a registered method
+(``registry.py``) is refused before anything is imported. ``export_model`` stages the directory beside
+``out_dir`` and loads the staged copy back before renaming it into place (``io.staged_directory``), so every
+exported directory has loaded once. ``resolve`` turns a shipped model's short name (``"bandit-icpo"``, under
+``icprl_lightning/pretrained/``) into its directory.
 """
 
 from __future__ import annotations
@@ -32,6 +16,7 @@ import json
 import math
 import re
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -225,6 +210,8 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
     """
     from importlib.metadata import version
 
+    from safetensors.torch import save
+
     checkpoint, out_dir = Path(checkpoint), Path(out_dir)
     ckpt = checkpoints.read_checkpoint(checkpoint)
     module = checkpoints.build_module(ckpt, checkpoint)
@@ -247,7 +234,8 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
               "icprl_lightning_version": version("icprl_lightning"), "exported_from": checkpoint.name,
               "results": RESULTS if evaluation is not None else None}
     try:
-        _write_model_dir(out_dir, overwrite, tensors, config, module, evaluation, results)
+        _stage(out_dir, overwrite, config, module, evaluation, results,
+               lambda tmp: (tmp / WEIGHTS).write_bytes(save(tensors, metadata={"format": "pt"})))
     except (StorageError, FileExistsError):
         raise
     except OSError as e:  # a full disk or a failing write: one line naming the directory; nothing is left behind
@@ -255,19 +243,19 @@ def export_model(checkpoint: str | Path, out_dir: str | Path, *, results: str | 
     return out_dir
 
 
-def _write_model_dir(out_dir: Path, overwrite: bool, tensors: dict[str, torch.Tensor], config: dict[str, Any],
-                     module: torch.nn.Module, evaluation: dict[str, Any] | None, results: Any) -> None:
-    from safetensors.torch import save
-
+def _stage(out_dir: Path, overwrite: bool, config: dict[str, Any], module: torch.nn.Module,
+           evaluation: dict[str, Any] | None, results: Any, write_weights: Callable[[Path], Any]) -> None:
+    """Stage a model directory (weights by ``write_weights``, config.json, results.json, card), load the staged
+    copy, checks and all, and only then move it into place."""
     with staged_directory(out_dir, marker=CONFIG, schema_version=SCHEMA_VERSION, what=WHAT,
                           overwrite=overwrite) as tmp:
-        (tmp / WEIGHTS).write_bytes(save(tensors, metadata={"format": "pt"}))  # an OSError, not a SafetensorError
+        write_weights(tmp)  # safetensors' save: an OSError, not a SafetensorError
         config["weights_sha256"] = sha256(tmp / WEIGHTS)
         (tmp / CONFIG).write_text(json.dumps(config, indent=2, default=str) + "\n")
         if evaluation is not None:
             shutil.copyfile(results, tmp / RESULTS)
         model_card(config, module, evaluation).save(tmp / CARD)
-        load_model_dir(tmp)  # the staged copy loads, checks and all, before it is moved into place
+        load_model_dir(tmp)
 
 
 def reissue_results(directory: str | Path, results: str | Path) -> Path:
@@ -276,12 +264,8 @@ def reissue_results(directory: str | Path, results: str | Path) -> Path:
     directory = Path(directory)
     module, config, evaluation = load_model_dir(directory), read_config(directory), _read_results(Path(results))
     config["results"] = RESULTS
-    with staged_directory(directory, marker=CONFIG, schema_version=SCHEMA_VERSION, what=WHAT, overwrite=True) as tmp:
-        shutil.copy2(directory / WEIGHTS, tmp / WEIGHTS)
-        (tmp / CONFIG).write_text(json.dumps(config, indent=2, default=str) + "\n")
-        shutil.copyfile(results, tmp / RESULTS)
-        model_card(config, module, evaluation).save(tmp / CARD)
-        load_model_dir(tmp)
+    _stage(directory, True, config, module, evaluation, results,
+           lambda tmp: shutil.copy2(directory / WEIGHTS, tmp / WEIGHTS))
     return directory
 
 
@@ -404,6 +388,3 @@ def model_card(config: dict[str, Any], module: torch.nn.Module, evaluation: dict
         "checkpoint's checksum over class, hyperparameters and tensors); `load_agent` verifies both before "
         "building the model, and never unpickles anything", ""]
     return ModelCard(f"---\n{data.to_yaml()}\n---\n\n" + "\n".join(body))
-
-
-# ---- icprl export --------------------------------------------------------------------------------------------

@@ -1,18 +1,10 @@
 """Atomic file output, the one way this package writes anything a reader may see half-done.
 
-* ``staged_directory``: fill a hidden sibling directory, rename it into place on success (datasets,
-  SAC checkpoint sets). It replaces an existing directory only if that is one of ours: a directory
-  holding the caller's marker file (``manifest.json``, ``summary.json``) with the caller's
-  ``schema_version`` (``check_replaceable``); anything else — a directory of user files, a plain file,
-  a symbolic link — is refused with ``NotReplaceableError``, overwrite or not.
-* ``path_lock``: an exclusive ``fcntl.flock`` on ``<parent>/.<name>.lock``, re-entrant within a process,
-  so that two processes writing the same path take turns; ``staged_directory`` holds it while staging.
-* ``write_atomic`` (``write_json_atomic``, ``save_figure``): every file a command writes, through a temporary
-  file and ``os.replace``; a symbolic link at the path is replaced, never followed, and a FIFO, device or
-  directory there is refused (``check_writable``).
-* ``sha256`` (file checksums of the dataset manifest) and ``jsonable`` (numpy values to JSON types).
-* ``StorageError`` / ``storage_error``: an ``OSError`` as one line naming the path; a full disk (``ENOSPC``,
-  ``EDQUOT``) says "no space left on <path>".
+``staged_directory`` fills a hidden sibling directory and renames it into place, replacing only a directory of
+ours (``check_replaceable``); ``path_lock`` makes writers of one path take turns; ``write_atomic`` writes every
+file a command writes through a temporary file and ``os.replace`` (a symbolic link is replaced, never followed;
+a FIFO, device or directory is refused); ``storage_error`` makes an ``OSError`` one line naming the path (a full
+disk: "no space left on <path>").
 """
 
 from __future__ import annotations
@@ -305,10 +297,14 @@ def check_writable(path: str | Path) -> None:
     except FileNotFoundError:
         return
     if not (stat.S_ISREG(mode) or stat.S_ISLNK(mode)):
-        kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
-                else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a special file")
-        raise NotReplaceableError(f"{path} is {kind}, not a file; refusing to write to it; remove it or choose "
-                                  "another path")
+        raise NotReplaceableError(f"{path} is {file_kind(mode)}, not a file; refusing to write to it; remove it or "
+                                  "choose another path")
+
+
+def file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, from its ``st_mode``, for an error message."""
+    return ("a directory" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a special file")
 
 
 def write_atomic(path: str | Path, content: bytes | str | Callable[[BinaryIO], Any]) -> Path:

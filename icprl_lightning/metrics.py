@@ -9,11 +9,9 @@ is optimal. ``WeakRegret`` averages it over every duel it sees. Strong regret ch
 
     reg_strong(a, a') = ((R*_τ − R_τ(a)) + (R*_τ − R_τ(a'))) / 2,
 
-zero only when both arms are optimal. It is the standard definition: the regret of Double Thompson Sampling
-(Wu & Liu 2016) and of the linear dueling-bandit literature (Saha 2021's average regret), Yue et al. 2012's
-strong regret (the sum of the two gaps) halved so it is on one arm's scale like the weak regret, hence in
-[0, max_a (R*_τ − R_τ(a))] and never below the weak regret (Chen & Frazier 2017, "Dueling Bandits with Weak
-Regret", ICML, contrast the two notions).
+zero only when both arms are optimal: the regret of Double Thompson Sampling (Wu & Liu 2016) and Saha 2021's
+average regret, Yue et al. 2012's strong regret halved to one arm's scale, never below the weak regret (Chen &
+Frazier 2017, "Dueling Bandits with Weak Regret", ICML, contrast the two).
 """
 
 from __future__ import annotations

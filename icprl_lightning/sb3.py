@@ -1,12 +1,9 @@
-"""Stable-Baselines3 agents evaluated while they train: episode rollouts and the checkpoint callback.
+"""Stable-Baselines3 agents evaluated while they train: episode rollouts and the checkpoint callback (for the
+SAC oracle and the from-scratch baselines).
 
-Used by the SAC oracle's training (``families/metaworld_reach/sac.py``) and the from-scratch baselines
-(``baselines/``). ``EvalCheckpointCallback`` evaluates the policy being trained every ``eval_every_steps``
-environment steps (and once before the first step) on a separate env reset with the same seed each time,
-so all checkpoints face the same start states and the curve is not drowned by episode noise; it keeps the
-best policy's weights (by mean evaluation return) and can save every checkpoint as an SB3 zip.
-
-Success of an episode is "the success flag was raised at some step", as in ``evaluation/rollout.py``.
+``EvalCheckpointCallback`` evaluates on a separate env reset with the same seed each time, so all checkpoints
+face the same start states and the curve is not drowned by episode noise. Success of an episode is "the
+success flag was raised at some step", as in ``evaluation/rollout.py``.
 """
 
 from __future__ import annotations

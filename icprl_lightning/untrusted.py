@@ -28,6 +28,8 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+from icprl_lightning.io import file_kind
+
 MAX_TEXT_BYTES = 64 << 20  # a JSON or YAML file
 MAX_DEPTH = 64  # nesting of lists and mappings; our files nest at most ~8
 MAX_VALUES = 2_000_000  # values in one file, YAML aliases expanded
@@ -48,9 +50,7 @@ def regular_file_size(path: str | Path, what: str, max_bytes: int) -> int:
     except OSError as e:
         raise UntrustedFileError(f"{path}: cannot read it ({e.strerror or e})") from None
     if not stat.S_ISREG(st.st_mode):
-        kind = ("a directory" if stat.S_ISDIR(st.st_mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode)
-                else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "a special file")
-        raise UntrustedFileError(f"{path} is {kind}, not a regular file; expected {what}")
+        raise UntrustedFileError(f"{path} is {file_kind(st.st_mode)}, not a regular file; expected {what}")
     if st.st_size > max_bytes:
         raise UntrustedFileError(f"{path} is {st.st_size:,} bytes, more than the {max_bytes:,} a {what} may hold")
     return st.st_size

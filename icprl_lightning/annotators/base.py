@@ -1,20 +1,9 @@
 """Who labels a pair: the ``Annotator`` interface and the batches of queries it answers.
 
-A setting asks its annotator to label a batch of *queries* (B-Pref's word for a pair shown to a
-teacher) and stores the answer (``labels.py``):
-
-* ``StepQueries``: I-PRL, one step of n contexts — the state s_h and the two proposed actions a, a',
-  with the oracle's utilities A*(s_h, a), A*(s_h, a') (privileged, for scripted teachers);
-* ``TrajectoryQueries``: T-PRL, n pairs of episodes ξ_a, ξ_b — their states and actions, with their
-  latent per-step rewards (privileged).
-
-Both carry ``tasks`` (the family's task of each pair, e.g. DarkRoom's goal cell: privileged too), which a
-person or an LLM needs to judge what "better" means. None of this leaves data generation: the stored
-context holds the states, actions and the label only.
-
-An annotator returns uint8 codes [n] (``FIRST``/``SECOND``/``EQUAL``/``SKIP``). It is chosen by
-``class_path`` in YAML (``StepPreferences(annotator=...)``, ``TrajectoryPairs(annotator=...)``), and its
-``config()`` (class path and init args) is recorded in the dataset's manifest.
+A setting asks its annotator to label a batch of *queries* (B-Pref's word for a pair shown to a teacher):
+I-PRL ``StepQueries`` or T-PRL ``TrajectoryQueries``, which carry privileged fields (the oracle's utilities or
+latent rewards, each pair's task) for scripted teachers, a person or an LLM. None of these leave data
+generation: the stored context holds the states, actions and the label only (``labels.py``).
 """
 
 from __future__ import annotations

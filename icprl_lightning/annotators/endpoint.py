@@ -6,18 +6,12 @@ visited cells and goal, as in the paper's appendix "Use LLMs to label trajectory
 ``"answer"``, must be ``1``, ``2``, ``skip`` or ``equal`` (case and surrounding space ignored).
 
 The endpoint is untrusted, so one try is bounded as a whole: ``timeout`` seconds from the connect to the
-body's last byte (every read of the status line, the headers and the body gets only what is left of that
-deadline, so a server dripping a byte at a time fails like a silent one), and at most ``max_reply_bytes``
-of body. A try fails when the deadline passes, the connection is refused or reset, the reply is not HTTP,
-its body is cut short (Content-Length not reached, chunked encoding unfinished), too large or not UTF-8,
-the status is 5xx, 408 or 429, or it is a redirect. Redirects are not followed unless
-``follow_redirects=True``, and then the prompt is POSTed again to the new address: a redirect turned into
-a GET (what browsers do for 301/302/303) would drop the prompt. A failed try is retried ``retries``
-times, waiting ``backoff · 2^k`` seconds before retry k; after the last one an ``AnnotatorError`` names
-the URL, what went wrong and the number of tries. Another 4xx status, or a body that is not an answer,
-fails at once: asking again would not change it. The client is the standard library's ``http.client``.
-Connecting is bounded by what is left of the deadline per address tried and again for the TLS handshake;
-host name resolution is not bounded (the system resolver takes no timeout).
+body's last byte (every read gets only what is left of that deadline, so a server dripping a byte at a time
+fails like a silent one), and at most ``max_reply_bytes`` of body. The failures that are retried (with
+``backoff · 2^k`` seconds before retry k) are listed in docs/reliability.md; another 4xx status, or a body that
+is not an answer, fails at once: asking again would not change it. A redirect is followed only with
+``follow_redirects=True``, by POSTing the prompt again: a redirect turned into a GET (what browsers do for
+301/302/303) would drop it. Host name resolution is not bounded (the system resolver takes no timeout).
 
 Template fields: trajectories ``{goal}``, ``{horizon}``, ``{trajectory_1}``, ``{trajectory_2}``,
 ``{grid}``; steps ``{goal}``, ``{position}``, ``{action_1}``, ``{action_2}``.
@@ -110,6 +104,14 @@ def parse_answer(text: str, url: str) -> int:
     return ANSWERS[answer]
 
 
+def _remaining(deadline: float) -> float:
+    """Seconds left before ``deadline`` (``time.monotonic``); a ``TimeoutError`` when none are."""
+    remaining = deadline - time.monotonic()
+    if remaining <= 0:
+        raise TimeoutError("deadline passed")
+    return remaining
+
+
 class TryFailed(Exception):
     """One try went wrong in a way another try may not (the retry loop catches it); the text says how."""
 
@@ -126,10 +128,7 @@ class _DeadlineReader(io.RawIOBase):
         return True
 
     def readinto(self, buffer: Any) -> int:
-        remaining = self.deadline - time.monotonic()
-        if remaining <= 0:
-            raise TimeoutError("deadline passed")
-        self.sock.settimeout(remaining)
+        self.sock.settimeout(_remaining(self.deadline))
         return self.file.readinto(buffer)
 
     def close(self) -> None:
@@ -145,10 +144,7 @@ class _DeadlineSocket:
         self.sock, self.deadline = sock, deadline
 
     def sendall(self, data: bytes) -> None:
-        remaining = self.deadline - time.monotonic()
-        if remaining <= 0:
-            raise TimeoutError("deadline passed")
-        self.sock.settimeout(remaining)
+        self.sock.settimeout(_remaining(self.deadline))
         self.sock.sendall(data)
 
     def makefile(self, mode: str = "rb", *args: Any, **kwargs: Any) -> io.BufferedReader:
@@ -249,10 +245,7 @@ class HTTPAnnotator(Annotator):
         kind = http.client.HTTPSConnection if parts.scheme == "https" else http.client.HTTPConnection
         phase, response = "connecting", None
         try:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise TimeoutError("deadline passed")
-            connection = kind(host, parts.port, timeout=remaining)
+            connection = kind(host, parts.port, timeout=_remaining(deadline))
             try:
                 connection.connect()
                 connection.sock = _DeadlineSocket(connection.sock, deadline)

@@ -1,13 +1,8 @@
 """Any Python function as an annotator: ``CallableAnnotator(fn)``.
 
-``fn(queries, rng)`` receives a ``StepQueries`` or a ``TrajectoryQueries`` batch (``base.py``; tell them
-apart with ``isinstance``) and the generator's ``numpy.random.Generator`` (draw from it, not from a
-global stream, so the dataset stays a function of the family's seed), and returns one code per pair:
-1 (first preferred), 0 (second), ``EQUAL`` or ``SKIP`` (``labels.py``). Its answer is checked —
-shape [n], an integer dtype, known codes — with an error naming what was wrong.
-
-In YAML ``fn`` is a dotted import path (``fn: mypackage.labels.closer_to_goal``), which jsonargparse
-imports; the manifest records that path.
+``fn(queries, rng)`` receives a ``StepQueries`` or ``TrajectoryQueries`` batch and the generator's ``rng``
+(draw from it, so the dataset stays a function of the seed) and returns one code per pair (``labels.py``),
+checked with an error naming what was wrong. In YAML ``fn`` is a dotted import path; the manifest records it.
 """
 
 from __future__ import annotations

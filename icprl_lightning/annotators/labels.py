@@ -1,25 +1,10 @@
 """Label codes of an annotator's answer, their check, and how a context turns them into stored labels.
 
-An annotator answers each pair with one code (uint8):
-
-* ``FIRST = 1``: the first item (``actions`` / ξ_a) is preferred;
-* ``SECOND = 0``: the second item (``alt_actions`` / ξ_b) is preferred;
-* ``EQUAL = 2``: both are as good (B-Pref's "equal" teacher);
-* ``SKIP = 3``: no answer (B-Pref's "skip" teacher: the pair is not informative enough to judge).
-
-1 and 0 are the stored label's own meaning (``preferred = 1``: the first won), so a decided answer is
-stored as is. A stored dataset holds only 0/1: its contexts have a fixed length (H steps, one label per
-pair), so an undecided comparison cannot be left out. ``resolve_labels`` replaces each EQUAL and each SKIP
-by a fair coin drawn from the generator's stream:
-
-* EQUAL: B-Pref trains on y = 1/2 for an equal answer; a fair coin is that label in expectation, and
-  is what a Bradley–Terry teacher answers when the two utilities are equal;
-* SKIP: B-Pref drops the query; a coin carries no information about the pair either, so a skipped
-  step is as uninformative as a dropped one while the context keeps its length.
-
-The coins are drawn only when some answer is undecided, so an annotator that always decides (the
-Bradley–Terry oracle) leaves the stream, and hence the dataset's bytes, as they were. The manifest counts
-each code (``skip_count``, ``equal_count``), and ``label_agreement`` measures the stored labels.
+Codes: ``FIRST = 1`` and ``SECOND = 0`` (the stored label's own meaning), ``EQUAL = 2`` and ``SKIP = 3``
+(B-Pref's "equal" and "skip" teachers). A stored context has a fixed length, so an undecided comparison
+cannot be left out: ``resolve_labels`` makes each EQUAL and SKIP a fair coin — B-Pref's y = 1/2 in
+expectation, and as uninformative as a dropped query. The coins are drawn only when some answer is
+undecided, so an annotator that always decides leaves the stream, and the dataset's bytes, as they were.
 """
 
 from __future__ import annotations

@@ -29,8 +29,6 @@ actions as ``predict(deterministic=True)`` at one network call per evaluation in
 
 from __future__ import annotations
 
-import sys
-import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -39,7 +37,7 @@ import stable_baselines3
 import torch
 from stable_baselines3 import DQN
 
-from icprl_lightning.baselines.from_scratch import from_scratch_record, train_from_scratch
+from icprl_lightning.baselines.from_scratch import over_goals, train_from_scratch
 from icprl_lightning.families.darkroom import DarkRoomFamily
 from icprl_lightning.families.darkroom.env import N_ACTIONS
 from icprl_lightning.families.darkroom.gym_env import DarkRoomGoalEnv
@@ -90,21 +88,11 @@ def run_goal(family: DarkRoomFamily, goal: np.ndarray, seed: int, episodes: int,
 def run(family: DarkRoomFamily, goals: np.ndarray, seeds: Sequence[int], episodes: int, eval_every: int = 5,
         eval_episodes: int = 10, test_episodes: int = 50, progress: bool = False) -> dict[str, Any]:
     """All (goal, seed) runs; per goal the mean over seeds, then mean ± sem over goals."""
-    start, cpu_start = time.perf_counter(), time.process_time()
-    keys = ("return", "success", "normalized_return")
-    per_goal = []
-    for g, goal in enumerate(goals):
-        runs = [run_goal(family, goal, int(np.random.SeedSequence([seed, g]).generate_state(1)[0]), episodes,
-                         eval_every, eval_episodes, test_episodes) for seed in seeds]
-        per_goal.append({"goal": np.asarray(goal).tolist(),
-                         **{k: float(np.mean([r[k] for r in runs])) for k in keys}, "runs": runs})
-        if progress:
-            print(f"goal {g}: return {per_goal[-1]['return']:.1f} (optimal "
-                  f"{runs[0]['reference_returns']['optimal']:.1f})", file=sys.stderr, flush=True)
     return {"algorithm": f"DQN (stable-baselines3 {stable_baselines3.__version__}, defaults except "
                          f"target_update_interval={TARGET_UPDATE_STEPS}, exploration_fraction={EXPLORATION_FRACTION})",
             "env": f"DarkRoom {family.size}x{family.size}, terminate_on_goal={family.terminate_on_goal}",
             "horizon": family.horizon, "episodes_per_goal": episodes, "paper_episodes_per_goal": PAPER_EPISODES,
             "seeds": list(seeds), "eval_every_episodes": eval_every, "eval_episodes": eval_episodes,
             "test_episodes": test_episodes,
-            **from_scratch_record(per_goal, keys, start, cpu_start)}
+            **over_goals(goals, seeds, lambda goal, seed: run_goal(family, goal, seed, episodes, eval_every,
+                                                                   eval_episodes, test_episodes), progress)}

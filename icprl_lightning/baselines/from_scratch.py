@@ -3,12 +3,13 @@
 One agent per (held-out task, seed) trains with periodic evaluation on fixed-seed episodes
 (``sb3.EvalCheckpointCallback``); the best checkpoint by that return is restored and reported on fresh test
 episodes, so the reported return is not the maximum of noisy estimates. Each baseline's JSON shares the
-protocol's description, the mean ± sem over tasks, its cost and the machine (``from_scratch_record``).
+protocol's description, the mean ± sem over tasks, its cost and the machine (``over_goals``).
 """
 
 from __future__ import annotations
 
 import platform
+import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -49,19 +50,27 @@ def train_from_scratch(model: BaseAlgorithm, eval_env: gym.Env, total_timesteps:
             "reference_returns": refs, "train_seconds": seconds}
 
 
-def summarize_over_goals(per_goal: Sequence[Mapping[str, Any]], keys: Sequence[str]) -> dict[str, dict[str, float]]:
-    """Mean ± standard error over goals of each key (each goal's value already averaged over seeds)."""
-    out = {}
+def over_goals(goals: np.ndarray, seeds: Sequence[int], run_goal: Callable[[np.ndarray, int], dict[str, Any]],
+               progress: bool = False) -> dict[str, Any]:
+    """``run_goal(goal, seed)`` for every goal and seed (the seed derived from both), per goal the mean over seeds;
+    the part of a baseline's JSON every algorithm shares: protocol, mean ± sem over goals, cost, machine."""
+    start, cpu_start = time.perf_counter(), time.process_time()
+    keys = ("return", "success", "normalized_return")
+    per_goal = []
+    for g, goal in enumerate(goals):
+        runs = []
+        for seed in seeds:
+            runs.append(run_goal(goal, int(np.random.SeedSequence([seed, g]).generate_state(1)[0])))
+            if progress:
+                print(f"goal {g} seed {seed}: return {runs[-1]['return']:.2f} success {runs[-1]['success']:.2f} "
+                      f"({runs[-1]['train_seconds']:.0f} s)", file=sys.stderr, flush=True)
+        per_goal.append({"goal": np.asarray(goal).tolist(),
+                         **{k: float(np.mean([r[k] for r in runs])) for k in keys}, "runs": runs})
+    summary = {}
     for key in keys:
         mean, sem = mean_sem(np.array([g[key] for g in per_goal], dtype=np.float64))
-        out[key] = {"mean": mean, "sem": sem}
-    return out
-
-
-def from_scratch_record(per_goal: Sequence[Mapping[str, Any]], keys: Sequence[str], wall_start: float,
-                        cpu_start: float) -> dict[str, Any]:
-    """The part of a from-scratch baseline's JSON every algorithm shares: protocol, summary, cost, machine."""
+        summary[key] = {"mean": mean, "sem": sem}
     return {"selection": "best checkpoint by mean evaluation return (fixed-seed episodes), reported on fresh episodes",
-            **summarize_over_goals(per_goal, keys), "n_goals": len(per_goal), "per_goal": list(per_goal),
-            "wall_seconds": time.perf_counter() - wall_start, "cpu_seconds": time.process_time() - cpu_start,
+            **summary, "n_goals": len(per_goal), "per_goal": per_goal,
+            "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu_start,
             "platform": platform.platform(), "torch_threads": torch.get_num_threads()}

@@ -23,8 +23,6 @@ and pass ``--episodes 1000`` for the paper's budget.
 
 from __future__ import annotations
 
-import sys
-import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -32,22 +30,14 @@ import numpy as np
 import stable_baselines3
 from stable_baselines3 import SAC
 
-from icprl_lightning.baselines.from_scratch import from_scratch_record, train_from_scratch
-from icprl_lightning.families.metaworld_reach.env import ACTION_DIM, HORIZON
+from icprl_lightning.baselines.from_scratch import over_goals, train_from_scratch
+from icprl_lightning.families.metaworld_reach.env import HORIZON
 from icprl_lightning.families.metaworld_reach.gym_env import ReachGoalEnv
-from icprl_lightning.families.metaworld_reach.oracle import expert_actions, normalized_return
-from icprl_lightning.sb3 import Act
+from icprl_lightning.families.metaworld_reach.oracle import normalized_return
+from icprl_lightning.families.metaworld_reach.sac import reference_acts
 
 PAPER_EPISODES = 1000
 DEFAULT_EPISODES = 20
-
-
-def reach_references(env: ReachGoalEnv, seed: int) -> dict[str, Act]:
-    """Uniform actions (seeded) and the scripted expert of ``families/metaworld_reach/oracle.py``, which reads
-    ``env``'s privileged state (the goal, the TCP): run them on ``env`` itself."""
-    rng = np.random.default_rng(seed)
-    return {"uniform": lambda obs: rng.uniform(-1.0, 1.0, size=ACTION_DIM).astype(np.float32),
-            "expert": lambda obs: expert_actions(env.oracle_state())[0]}
 
 
 def run_goal(goal: np.ndarray, seed: int, episodes: int, horizon: int = HORIZON, eval_every: int = 2,
@@ -57,7 +47,7 @@ def run_goal(goal: np.ndarray, seed: int, episodes: int, horizon: int = HORIZON,
     model = SAC("MlpPolicy", ReachGoalEnv(goal, horizon=horizon), seed=model_seed, device="cpu")
     eval_env = ReachGoalEnv(goal, horizon=horizon)
     result = train_from_scratch(model, eval_env, episodes * horizon, eval_every * horizon, eval_episodes, eval_seed,
-                                test_episodes, test_seed, reach_references(eval_env, ref_seed))
+                                test_episodes, test_seed, reference_acts(eval_env, np.random.default_rng(ref_seed)))
     refs = result["reference_returns"]
     result["normalized_return"] = float(normalized_return(result["return"], refs["uniform"], refs["expert"]))
     return {"goal": np.asarray(goal).tolist(), "seed": seed, **result}
@@ -66,21 +56,9 @@ def run_goal(goal: np.ndarray, seed: int, episodes: int, horizon: int = HORIZON,
 def run(goals: np.ndarray, seeds: Sequence[int], episodes: int, horizon: int = HORIZON, eval_every: int = 2,
         eval_episodes: int = 2, test_episodes: int = 10, progress: bool = False) -> dict[str, Any]:
     """All (goal, seed) runs; per goal the mean over seeds, then mean ± sem over goals."""
-    start, cpu_start = time.perf_counter(), time.process_time()
-    keys = ("return", "success", "normalized_return")
-    per_goal = []
-    for g, goal in enumerate(goals):
-        runs = []
-        for seed in seeds:
-            runs.append(run_goal(goal, int(np.random.SeedSequence([seed, g]).generate_state(1)[0]), episodes,
-                                 horizon, eval_every, eval_episodes, test_episodes))
-            if progress:
-                print(f"goal {g} seed {seed}: return {runs[-1]['return']:.2f} success {runs[-1]['success']:.2f} "
-                      f"({runs[-1]['train_seconds']:.0f} s)", file=sys.stderr, flush=True)
-        per_goal.append({"goal": np.asarray(goal).tolist(),
-                         **{k: float(np.mean([r[k] for r in runs])) for k in keys}, "runs": runs})
     return {"algorithm": f"SAC (stable-baselines3 {stable_baselines3.__version__}, default hyperparameters)",
             "env": "metaworld reach-v3, latent reward -||tcp - goal||", "horizon": horizon,
             "episodes_per_goal": episodes, "paper_episodes_per_goal": PAPER_EPISODES, "seeds": list(seeds),
             "eval_every_episodes": eval_every, "eval_episodes": eval_episodes, "test_episodes": test_episodes,
-            **from_scratch_record(per_goal, keys, start, cpu_start)}
+            **over_goals(goals, seeds, lambda goal, seed: run_goal(goal, seed, episodes, horizon, eval_every,
+                                                                   eval_episodes, test_episodes), progress)}

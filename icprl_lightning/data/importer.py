@@ -1,34 +1,13 @@
-"""Bring your own recorded preference data: check a user's arrays and write them as an icprl dataset.
+"""Bring your own recorded preference data: check a user's arrays and write them as an icprl dataset
+(``icprl import``; the fields and the command's forms are in docs/recorded_data.md and docs/data_formats.md).
 
-    icprl import prefs.npz --out data/my_prefs --kind step_preference --n-actions 5 [--val-fraction 0.1]
-    icprl import prefs_dir/ --out data/my_prefs --kind trajectory_preference --action-dim 4 [--seed 0]
-
-    icprl import exports/darkroom_hf --format hf|parquet|minari --out data/darkroom   (an `icprl export-data` export)
-    icprl import rows.parquet --format trl --kind step_preference --n-actions 5 --out data/rows
-    icprl import pairs.npz --format bpref --n-actions 5 [--ties drop] [--label-convention bpref] --out data/pairs
-
-``--format`` other than ``npz`` (the default) is ``data/interop``: an export is rebuilt byte for byte from the
-manifest it carries; TRL chosen/rejected rows and segment-pair label arrays are converted to the arrays below
-and then imported as they are (``docs/data_formats.md``).
-
-``SOURCE`` is an ``.npz`` file or a directory of ``<field>.npy`` files, named as the context's fields
-(``contexts.py``; the table is in ``docs/recorded_data.md``). Every field is checked before anything is
-written — presence, shape, dtype, label values, action range, NaN/inf, magnitude — and a bad one is a
-``ValueError`` naming the field and what is expected. States and continuous actions beyond
-``|x| <= 1e6`` (``schema.MAX_MAGNITUDE``) are refused, not standardized: rescale them first (why: the
-``data/schema.py`` docstring).
-
-The source is untrusted: ``data/source_files.py`` reads it, checking every ``.npy`` header's declared
-shape and dtype against the file's size and a size limit (``--max-source-bytes``) before allocating
-anything. A truncated or corrupt file, an unreadable one or a full disk while writing is one line naming
-the file (and member). The arrays are converted to the store's compact
-dtypes (float32 states and continuous actions, int8/int16/int32 action indices, uint8 labels), rows are
-reordered task-major (stable, so each task keeps its recorded order), the tasks are split into train and
-val with a seeded permutation, and the result is written by ``store.write_dataset`` (one ``.npy`` per
-field and split, ``manifest.json`` with checksums, staged and renamed). The field checks here are the
-loader's (``data/schema.py``) applied to the source, so whatever imports also loads
-(``tests/reliability/test_import_fuzz.py``). ``RecordedPreferenceDataModule`` (``data/recorded.py``) trains any
-method on it.
+The source is untrusted: ``data/source_files.py`` checks every ``.npy`` header against the file's size and a
+limit before allocating anything, and every field is checked before anything is written, with a
+``ValueError`` naming the field and what is expected. These are the loader's checks (``data/schema.py``)
+applied to the source, so whatever imports also loads (``tests/reliability/test_import_fuzz.py``). States and
+continuous actions beyond ``schema.MAX_MAGNITUDE`` are refused, not standardized (why: ``data/schema.py``).
+Rows are stored task-major (stable, so each task keeps its recorded order) and the tasks split into train and
+val by a seeded permutation.
 """
 
 from __future__ import annotations
@@ -315,7 +294,3 @@ def import_preferences(source: str | Path | Mapping[str, np.ndarray], out_dir: s
 
 FORMATS = ("npz", "hf", "parquet", "minari", "trl", "bpref")
 EXPORT_FORMATS = ("hf", "parquet", "minari")  # `icprl export-data` exports: rebuilt exactly, with kind and actions
-
-
-
-

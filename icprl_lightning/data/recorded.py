@@ -3,29 +3,13 @@
     icprl import prefs.npz --out data/my_prefs --kind step_preference --n-actions 5
     icprl fit --config configs/recorded_icpo.yaml --data.init_args.data_dir data/my_prefs
 
-The dataset is what ``icprl import`` (``data/importer.py``) writes: the store's layout (``data/store.py``)
-with ``train`` and ``val`` splits, task-major rows, and a manifest whose config says the context kind,
-the state size, the action spec and the context length. This DataModule exposes them as ``context_kind``,
-``state_dim``, ``action_spec`` and ``context_length``, so the CLI links the model's sizes from the data.
-Batches are whole-batch fancy indices of the memory-mapped arrays (``ContextBatches``):
-
-* ``pairs=True`` adds the comparisons of *another* row of the same task as the samples' ``pair`` (ICPO's
-  default ``pair_source: other_trajectory``, RewardGen's ``other_pair``). Recorded tasks may hold any
-  number of rows, so the other row is drawn among that task's rows; every task needs at least two.
-* ``query_labels=True`` serves ``query_states`` / ``optimal_actions`` (DPT/DP²T), if they were imported.
-
-The dataset is checked as a whole when the DataModule is built: the manifest's config (each key's type
-and range), the fields each split must hold, and every split's arrays against the schema that config
-declares (``data/schema.py``: dtypes, row and step counts, sizes, labels, action indices, finite values
-within ``|x| <= 1e6``), one ``DatasetError`` naming the split and field before training starts. With
-``verify_checksums`` the files' SHA-256 are checked in ``setup``.
-
-There is no simulator behind recorded data, so it ``offers`` no held-out evaluation and
-``held_out`` refuses every evaluation: validation reports the methods' losses on the held-out tasks of the ``val``
-split, and deployment is through ``load_agent``. What it serves is the data contract
-(``data_contract.PreferenceData``), as the generated data's DataModule: the pairing check (``icprl fit``, and
-``InContextModule.on_fit_start`` for a fit without the CLI) compares the model's context kind with this data's,
-so the DataModule never reads the model.
+The dataset is what ``icprl import`` writes (docs/recorded_data.md); its manifest's kind and sizes are exposed
+as ``context_kind``, ``state_dim``, ``action_spec`` and ``context_length``, so the CLI links the model's sizes
+from the data. ``pairs=True`` adds the comparisons of *another* row of the same task as the samples' ``pair``
+(recorded tasks may hold any number of rows, so every task needs at least two). The dataset is checked as a
+whole (``data/schema.py``) when the DataModule is built, before training. There is no simulator behind
+recorded data, so it offers no held-out evaluation (``held_out`` refuses each): validation reports the losses
+on the ``val`` split's tasks.
 """
 
 from __future__ import annotations

@@ -1,25 +1,10 @@
 """The whole-dataset check: every split's fields against the schema of the contexts they hold, before training.
 
-A field's *role* is declared once here, by name (the names of ``contexts.py``'s dataclasses, the settings'
-extra fields and the importer's): states, actions, labels, rewards and row indices. From the roles and
-what the model was built for (``DatasetSchema``: the context kind, the action spec, the state size and
-the longest context it takes) follow the rules every split of a dataset must meet, generated or imported:
-
-* dtypes as the store writes them: states, rewards and continuous actions ``float32``; discrete actions
-  integer indices; ``preferred`` ``uint8``; ``task_index`` / ``quality`` / ``source_row`` integers;
-* one row count per split (the first axis of every field), one step count T >= 1 per split (the second
-  axis of every per-step field), one state size S (equal to the model's), the action size of the spec,
-  T no longer than the model's context (``max_steps``);
-* values: labels in {0, 1}, action indices in [0, n), and every state, reward and continuous action
-  finite with ``|x| <= MAX_MAGNITUDE``; other floating fields finite.
-
-A split that holds none of these fields (``tasks``: the task split's goals or bandit parameters) is only
-checked to be numeric and finite. The shape and dtype rules read the ``.npy`` headers only; the value
-rules read every value once, in blocks of rows (``_CHUNK_VALUES``), so a memory-mapped dataset is
-streamed, never copied whole — the cost is one sequential read of the dataset, paid once per load.
-
-Any violation is one ``InvalidDatasetError`` (a ``DatasetError`` and a ``ValueError``) naming the
-dataset, the split and the field, what was expected and what was found.
+A field's *role* (state, action, label, reward, row index) is declared once here, by name; from the roles and
+what the model was built for (``DatasetSchema``) follow the dtypes, shapes and value ranges every split must
+meet, generated or imported. The shape and dtype rules read the ``.npy`` headers only; the value rules read
+every value once, in blocks of rows (``_CHUNK_VALUES``), so a memory-mapped dataset is streamed, never copied
+whole. Any violation is one ``InvalidDatasetError`` naming the dataset, the split and the field.
 
 **Magnitudes are refused, not standardized.** ``|x| > 1e6`` in a state, reward or continuous action means
 unscaled units or a sentinel (1e30 for "missing"): the models take these values raw through linear

@@ -5,23 +5,13 @@ Layout::
     <path>/manifest.json            schema version, generator config, seed, sizes, statistics, checksums
     <path>/<split>/<field>.npy      e.g. train/states.npy, eval_low/preferred.npy
 
-A dataset is written into a hidden temporary sibling directory and renamed into place only after every
-array and the manifest are on disk, so an interrupted generation leaves nothing that looks like a
-dataset. Loading checks the schema version, the generator config, and each file's size and SHA-256, and
-every failure says what is wrong and how to regenerate; a field or split the manifest does not list is a
-``MissingFieldError`` naming it and the path. A manifest that is not what this module writes (wrong types,
-paths outside the dataset, a file whose ``.npy`` header disagrees with its entry) is a ``DatasetError``;
-what the arrays hold is checked as a whole by ``data/schema.py`` (``InvalidDatasetError``), by the
-DataModules, before training.
-
-A failure while writing (a full disk: "no space left on <path>") is a ``StorageError`` (an ``OSError``)
-naming the path; the staged copy is removed, so nothing half-written is left and an existing dataset at
-the path is untouched.
-
-Only a dataset of this project is ever replaced (``overwrite=True``): a directory whose ``manifest.json``
-is readable and has this ``SCHEMA_VERSION`` (``check_replaceable_dataset``, the one check the store, the
-DataModules and the importer use). A directory of anything else, a plain file or a symbolic link at the
-path is refused with ``NotReplaceableError``. Writers of one path take turns (``dataset_lock``).
+A dataset is staged in a hidden sibling directory and renamed into place (``io.staged_directory``), so an
+interrupted generation or a full disk leaves nothing that looks like a dataset and an existing one untouched.
+Loading checks the schema version, the generator config and each file's size and SHA-256; a manifest that is
+not what this module writes (wrong types, paths outside the dataset, an ``.npy`` header that disagrees with
+its entry) is a ``DatasetError``; what the arrays hold is checked by ``data/schema.py``. Only a dataset of
+this project is ever replaced (``check_replaceable_dataset``, the one check the store, the DataModules and the
+importer use); writers of one path take turns (``dataset_lock``).
 """
 
 from __future__ import annotations

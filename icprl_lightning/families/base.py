@@ -1,28 +1,17 @@
 """The one extension point: a task family and its privileged oracle (DESIGN.md, "Task families").
 
-A *task family* is a distribution of tasks sharing states and actions (DarkRoom goals, Meta-World Reach
-goals, dueling-bandit reward vectors). The generic recipes of ``icprl_lightning.data.settings`` (I-PRL
-step preferences, T-PRL trajectory pairs, DPT reward contexts, DIT reward trajectories) need from a
-family only what ``TaskFamily`` and ``Oracle`` declare here, so a new environment is one class of each
-(``docs/extending.md`` walks through one). ``Family`` is what every family has, MDP or not: the dueling
-bandits are a ``Family`` with their own setting (``data/settings/bandit_duels.py``).
+The generic recipes of ``icprl_lightning.data.settings`` need from a family only what ``TaskFamily`` and
+``Oracle`` declare here, so a new environment is one class of each (``docs/extending.md``). ``Family`` is
+what every family has, MDP or not (the dueling bandits are a ``Family`` with their own setting).
 
 Base classes rather than ``typing.Protocol``: jsonargparse accepts a Protocol only when every method's
 signature matches it exactly, which makes a user's family fail with an opaque "does not implement
 protocol"; a subclass gets the defaults below and a clear error for what it lacks.
 
-Vocabulary:
-
-* a *task* is one row of the array ``tasks(split)`` returns (a goal cell, a goal position, θ);
-* a *mixing level* p names a behavior policy: the oracle's optimal/expert action with probability p,
-  otherwise a uniform action (paper, appendix "Pretraining Data Generation");
-* the *utility* of an action is what Bradley–Terry labels compare: A*(s, a) up to a per-state constant
-  (paper, eq. (i-prl-pref)); only differences at one state matter;
-* ``Rollouts`` are N trajectories advancing together during data generation, one NumPy call per step
-  for all of them (no Python loop over environments).
-
-The oracle is privileged: it sees goals and simulator state. Only data generation and evaluation hold
-it; ``methods/`` and ``models/`` never import a family (tested by import inspection).
+A *mixing level* p names a behavior policy: the oracle's optimal/expert action with probability p, else a
+uniform one (paper, appendix "Pretraining Data Generation"). The *utility* of an action is what Bradley–Terry
+labels compare: A*(s, a) up to a per-state constant (paper, eq. (i-prl-pref)). The oracle is privileged (goals,
+simulator state): ``methods/`` and ``models/`` never import a family (tested by import inspection).
 """
 
 from __future__ import annotations
@@ -56,11 +45,7 @@ class Rollouts(Protocol):
 
 
 class Oracle(ABC):
-    """Privileged knowledge of a family: uniform and optimal actions, the utility of an action.
-
-    Subclasses implement the three abstract methods; the behavior mixture and the query labels are
-    written here once (override ``query_labels`` to query other states than the visited ones).
-    """
+    """Privileged knowledge of a family: uniform and optimal actions, the utility of an action."""
 
     @abstractmethod
     def uniform_actions(self, state: Any, rng: np.random.Generator) -> np.ndarray:
@@ -118,12 +103,8 @@ class Family(ABC):
 
 
 class TaskFamily(Family):
-    """An MDP family: the seeded task split, vectorized environments and the oracle.
-
-    Subclasses set the class attributes and implement the abstract methods; the rest has defaults that
-    fit a family whose contexts are episodes of its vector env (override ``context_rollouts`` when a
-    context continues past an episode's end, as DarkRoom's do).
-    """
+    """An MDP family: the seeded task split, vectorized environments and the oracle. The defaults fit a family
+    whose contexts are episodes of its vector env (DarkRoom overrides ``context_rollouts``)."""
 
     task_name: str = "tasks"     # names the stored task arrays: tasks/train_<task_name>.npy
     max_parallel: int | None = None  # at most this many trajectories simulated at once (None: all)
@@ -157,12 +138,9 @@ class TaskFamily(Family):
 
     def independent_state_rollouts(self, tasks: np.ndarray, rng: np.random.Generator) -> Rollouts:
         """H steps per row whose state is drawn afresh at every step, independently of the task and of the
-        actions taken (DPT's own DarkRoom data; the I-PRL and reward settings' ``state_source="uniform"``).
-
-        ``step(actions)`` returns the state the action leads to and its latent reward, as usual; the next
-        ``observations()`` are a new independent draw. Such states carry no information about the task,
-        so a model can only read the task from the labels (or rewards) of its context. A family that
-        can place its simulator in a drawn state overrides this.
+        actions taken (``state_source="uniform"``): a model can then read the task only from the labels (or
+        rewards) of its context. ``step`` returns where the action leads; the next ``observations()`` are a
+        new draw. A family that can place its simulator in a drawn state overrides this.
         """
         raise NotImplementedError(
             f"{type(self).__name__} does not draw states independently of its trajectories: "
@@ -170,26 +148,17 @@ class TaskFamily(Family):
             "use state_source='rollout'")
 
     def calibrate(self, targets: Mapping[str, float], episodes: int, seed: int) -> dict[str, dict[str, float]]:
-        """Mixing level per named target share of the optimal return: ``{name: {"mixing": p, ...}}``.
-
-        ``calibration.calibrate_by_simulation`` (normalized return between uniform and optimal, by simulation with
-        common random numbers): the path for a new family, which needs nothing but its oracle for it. Each
-        built-in family overrides it as an exception whose docstring gives its reason (DarkRoom's exact
-        closed-form optimum, Reach's cheaper grid, the SAC recipe's checkpoints), tested to agree with this
-        simulation within its noise.
-        """
+        """Mixing level per named target share of the optimal return: ``{name: {"mixing": p, ...}}``, by
+        simulation (``calibration.calibrate_by_simulation``). The built-in families override it, each giving its
+        reason, tested to agree with this simulation within its noise."""
         from icprl_lightning.families.calibration import calibrate_by_simulation
 
         return calibrate_by_simulation(self, targets, episodes, seed)
 
     def references(self, tasks: np.ndarray, mixing: Mapping[str, float], episodes: int,
                    rng: np.random.Generator) -> dict[str, Any]:
-        """Held-out references: ``{"test_reference": {quality: {behavior_return, optimal_return, ...}}}``.
-
-        ``calibration.references_by_simulation`` (also per-task uniform and optimal returns, which ``normalizer``
-        reads): the path for a new family. The built-in families' overrides are exceptions with their reasons
-        in their docstrings, as for ``calibrate``.
-        """
+        """Held-out references ``{"test_reference": {quality: {...}}, ...}`` by simulation
+        (``calibration.references_by_simulation``; overridden as ``calibrate`` is)."""
         from icprl_lightning.families.calibration import references_by_simulation
 
         return references_by_simulation(self, tasks, mixing, episodes, rng)
@@ -215,10 +184,8 @@ class TaskFamily(Family):
 
 
 class EnvRollouts:
-    """``Rollouts`` over a family's vector env: reset once with a seed drawn from ``rng``, then step.
-
-    The env must offer ``oracle_state()`` (the privileged state) besides Gymnasium's reset/step.
-    """
+    """``Rollouts`` over a family's vector env (offering ``oracle_state()``): reset once with a seed drawn from
+    ``rng``, then step."""
 
     def __init__(self, env: Any, rng: np.random.Generator) -> None:
         self.env = env

@@ -7,14 +7,8 @@ uniform one) quality is the normalized return
     q(p) = (R(π_p) − R(uniform)) / (R(optimal) − R(uniform)),
 
 measured here by simulation on the training tasks with common random numbers (every p sees the same
-tasks, starts and coins), made monotone and inverted (``invert_quality_curve``).
-
-This is ``TaskFamily.calibrate`` / ``references`` of every family that does not override them, and the path
-for a new one: it needs only the family's oracle (uniform and optimal actions) and its episodes. The built-in
-families override them, each as a documented exception tested to agree with this simulation within its noise:
-DarkRoom's optimal return is exact in closed form and its scale is R / R*; Meta-World Reach calibrates on a
-cheaper grid and reports success rates; the SAC recipe's behavior policies are checkpoints, not mixtures.
-Every family shares ``invert_quality_curve``.
+tasks, starts and coins), made monotone and inverted (``invert_quality_curve``). This is the default
+``TaskFamily.calibrate`` / ``references``; the built-in families override them, each giving its reason.
 """
 
 from __future__ import annotations

@@ -1,20 +1,12 @@
-"""Gymnasium ids for the task families' envs: ``icprl/DarkRoom-v0`` and ``icprl/MetaWorldReach-v0``.
+"""Gymnasium ids for the task families' envs: ``icprl/DarkRoom-v0`` and ``icprl/MetaWorldReach-v0``
+(kwargs, spaces and seeding: docs/environments.md).
 
-``import icprl_lightning`` registers them (this module's ``register_envs``; Gymnasium can also import it:
-``gymnasium.make("icprl_lightning.families.registration:icprl/DarkRoom-v0")``). Each id makes a valid env from
-its defaults alone: DarkRoom's first held-out goal, the centre of Reach's goal box.
-Gymnasium 1.x has no plugin discovery (0.26's ``gymnasium.envs`` entry points were removed in 1.0), so
-registration happens on import only. The entry points are strings: registering imports neither torch nor
-MuJoCo, which load when an env is first made.
-
-Each id has a single-env ``entry_point`` (``gymnasium.make``) and the project's batched env as its
-``vector_entry_point`` (``gymnasium.make_vec``: N episodes step in one call, not a loop over N envs). Both
-take the same kwargs; their meaning, the spaces and the seeding are in ``docs/environments.md``. No
-``max_episode_steps``: the envs truncate at their own ``horizon`` kwarg, which a fixed ``TimeLimit`` would
-contradict.
-
-The dueling bandit is not registered: its action is a pair of arms and its feedback a comparison, not a
-reward, so a Gymnasium reward would mislead every tool that maximizes it (``docs/environments.md``).
+``import icprl_lightning`` registers them: Gymnasium 1.x has no plugin discovery, so registration happens on
+import only. The entry points are strings, so registering imports neither torch nor MuJoCo. Each id has a
+single-env ``entry_point`` and the project's batched env as its ``vector_entry_point``, taking the same kwargs.
+No ``max_episode_steps``: the envs truncate at their own ``horizon`` kwarg, which a fixed ``TimeLimit`` would
+contradict. The dueling bandit is not registered: its feedback is a comparison, and a Gymnasium reward would
+mislead every tool that maximizes it.
 """
 
 from __future__ import annotations

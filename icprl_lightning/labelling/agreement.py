@@ -1,14 +1,6 @@
-"""How far the people agree: with each other and with the latent ordering, per annotator.
-
-For each annotator, over the answers that count (``answer_log.py``; an undone answer does not):
-
-* ``answered``, ``first``, ``second``, ``equal``, ``skip``: counts; ``median_response_ms``;
-* ``latent_agreement``: among their decided answers (first / second) to pairs whose latent utilities differ,
-  the fraction that names the pair with the higher one (A*, the latent return, θᵀφ: ``pairs.py``);
-* ``inter_annotator``: for each other annotator, over the pairs both decided, the fraction of equal answers
-  (``pairs`` says over how many); ``null`` where they decided no pair in common.
-
-An equal or skipped answer is in no agreement (it names no winner); a rate over no pair is ``null``.
+"""How far the people agree: with each other and with the latent ordering, per annotator (the fields are in
+docs/labelling.md). Only answers that count (not undone) are used; an equal or skipped answer is in no
+agreement (it names no winner), and a rate over no pair is ``null``.
 """
 
 from __future__ import annotations

@@ -1,25 +1,11 @@
-"""``icprl label --export OUT``: a session's answers as our datasets and as other tools' rows.
+"""``icprl label --export OUT``: a session's answers as our datasets and as other tools' rows (the files are listed
+in docs/labelling.md: answers.jsonl, agreement.json, dataset/, trl_rows.parquet, imitation_pairs.npz).
 
-    OUT/answers.jsonl         every answer that counts (undone ones left out), one line each: annotator, pair,
-                              label, response_ms, time, task_index, row (the pair's row in the queue)
-    OUT/agreement.json        per annotator: counts, agreement with the latent ordering and with each other
-    OUT/dataset/              the first / second / equal answers as a recorded-preference dataset (``icprl
-                              import``'s layout, its ``source_row`` the answer's line in answers.jsonl;
-                              ``icprl fit --config configs/recorded_icpo.yaml --data.init_args.data_dir OUT/dataset``)
-    OUT/trl_rows.parquet      the decided answers as TRL chosen/rejected rows (``icprl import --format trl``)
-    OUT/imitation_pairs.npz   every first / second / equal answer as imitation's segment pairs, ``label`` the
-                              probability that segment 1 is preferred: 1, 0, and 0.5 for a tie
-                              (``icprl import --format bpref``); a step pair is a segment of one step
-
-One row per (annotator, pair) answer: two people's answers to one pair are two rows. A skipped pair is in no
-dataset (nothing was said about it). A tie (equal) is the label 0.5 end to end (``ties="soft"``, the default):
-in the imitation rows and in the dataset, whose manifest then says ``soft_labels`` and whose labels are
-float32; ICPO and RewardGen train on it (a tie scores both orders equally), every other method refuses it
-before training (``validation.pairing_errors``). ``ties="drop"`` leaves ties out of the dataset (0/1 labels
-that every method takes). TRL rows have no tie (a row names its winner by its column): they hold the decided
-answers only. Bandit duels have no state, which the dataset (and a TRL prompt) needs: their answers are in
-answers.jsonl and the imitation rows only. The goal and the latent utilities stay in the session: no exported
-context carries them (the dataset holds states, actions, labels and the task's index only).
+One row per (annotator, pair) answer. A skipped pair is in no dataset. A tie is the label 0.5 end to end
+(``ties="soft"``): the dataset's manifest then says ``soft_labels`` and only ICPO and RewardGen train on it
+(``validation.pairing_errors``); ``ties="drop"`` leaves ties out. TRL rows hold the decided answers only (a row
+names its winner by its column). Bandit duels have no state, so their answers go to answers.jsonl and the
+imitation rows only. The goal and the latent utilities stay in the session: no exported context carries them.
 """
 
 from __future__ import annotations

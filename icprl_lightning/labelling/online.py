@@ -1,27 +1,14 @@
-"""A person answers in the browser as an ``Annotator``: ``BrowserAnnotator`` teaches an agent in context online,
-or labels a DarkRoom dataset while it is generated (a setting's ``annotator``).
+"""A person answers in the browser as an ``Annotator``: ``BrowserAnnotator`` teaches an agent in context online
+(``icprl evaluate online --browser-session DIR``), or labels a DarkRoom dataset while it is generated (a
+setting's ``annotator``); docs/labelling.md shows both.
 
-    icprl evaluate online --config configs/icpo_darkroom.yaml --ckpt CKPT --browser-session labels/online
-    setting: {class_path: ...TrajectoryPairs, init_args: {annotator: {class_path:
-              icprl_lightning.labelling.online.BrowserAnnotator, init_args: {session: labels/generation}}}}
-
-``icprl evaluate online`` deploys the agent on held-out DarkRoom tasks; each time it asks for a comparison
-(its pair rule, as with any annotator) the comparison is put on the page, and the agent waits for the answer.
-The page shows, per comparison, the agent's cell, the goal, its two proposed moves, its episode so far (the path),
-the return it has gathered in this episode, and the comparisons already in its context with their answers.
-Answers go through the labelling server (``server.py``: the token, the checks, the 4xx) into the session's
-append-only log (``answer_log.py``), so every answer of a run is on disk with its response time; each asked
-comparison is appended to ``<session>/asked.jsonl`` too. An answer the agent has used can no longer be undone.
-The page's address (with its token) is printed on stderr and written to ``<session>/page.url`` (mode 0600, as
-Jupyter's runtime files), where a program answering for a person (a scripted teacher, a study's harness) finds it.
-
-The vector env plays all held-out tasks at once, so one query step asks one comparison per task; the page
-shows them one after another. EQUAL and SKIP are answers like any annotator's: a tie or a skip enters the agent's
-context, or a generated dataset, as a fair coin (``annotators/labels.py``; ``icprl label`` keeps ties as 0.5).
-
-Data generation asks batches of step pairs (drawn as the online ones, without a path or a context) or of
-trajectory pairs (drawn as ``icprl label``'s DarkRoom trajectories). It draws DarkRoom's 2-D cells; other
-families' queries are an error.
+Answers go through the labelling server (``server.py``: the token, the checks) into the session's append-only
+log, so every answer is on disk with its response time; each asked comparison goes to ``<session>/asked.jsonl``.
+An answer the agent has used can no longer be undone. The page's address (with its token) is printed on stderr
+and written to ``<session>/page.url`` (mode 0600), where a program answering for a person finds it. One query
+step asks one comparison per held-out task; the page shows them one after another. EQUAL and SKIP enter a
+context as a fair coin (``annotators/labels.py``). Only DarkRoom's 2-D cells are drawn; other families' queries
+are an error.
 """
 
 from __future__ import annotations

@@ -1,19 +1,11 @@
-"""What a person is asked to compare: one ``PairSource`` per view, drawing pairs from a family's held-out tasks.
+"""What a person is asked to compare: one ``PairSource`` per view (``VIEWS``), drawing pairs from a family's
+held-out tasks.
 
-A source draws ``n`` pairs once, with its seed (``build``), as arrays that the session keeps (``queue.npz``):
-the compared items in the store's field names (``KINDS`` of ``data/importer.py``), ``task_index`` (which
-held-out task), ``goal`` (the task itself, shown to the person — it never reaches an exported context) and
-``utility_first`` / ``utility_second``, the latent ordering the person's answers are compared with
-(A*(s, a) for a step pair, the latent return for a trajectory pair, θᵀφ(arm) for a duel).
-
-``show`` turns pair ``i`` into what the page draws (cells on the grid, end-effector positions, arm features);
-the page never sees the utilities.
-
-* ``darkroom_steps``: a uniform cell of the 10 × 10 grid, two different actions (I-PRL);
-* ``darkroom_trajectories``: two episodes of the mixed behavior policy (T-PRL), H = 100;
-* ``reach_trajectories``: two Meta-World Reach episodes of the mixed scripted expert (T-PRL), their hand
-  (end-effector) positions ``obs[0:3]`` drawn in 3-D as two projections;
-* ``bandit_duels``: two different arms of the linear dueling bandit, their features φ and the task's θ.
+``build`` draws ``n`` pairs once, with its seed, as the arrays the session keeps (``queue.npz``): the compared
+items in the store's field names, ``task_index``, ``goal`` (shown to the person, never in an exported context)
+and ``utility_first`` / ``utility_second``, the latent ordering the answers are compared with (A*(s, a), the
+latent return, or θᵀφ(arm)). ``show`` turns pair ``i`` into what the page draws; the page never sees the
+utilities.
 """
 
 from __future__ import annotations
@@ -153,5 +145,3 @@ class BanditDuels(PairSource):
 
 VIEWS: dict[str, type[PairSource]] = {"darkroom_steps": DarkRoomSteps, "darkroom_trajectories": DarkRoomTrajectories,
                                       "reach_trajectories": ReachTrajectories, "bandit_duels": BanditDuels}
-# the fields a view keeps for the page and the agreement, never exported into a context
-PRIVILEGED = ("goal", "utility_first", "utility_second", "features")

@@ -1,19 +1,11 @@
 """The labelling page's HTTP server: a Starlette app over one session (``make_app``), served by uvicorn.
 
-Routes (every one needs ``?token=<the session token>``; anything else is a 404):
-
-    GET  /             the page: HTML with its CSS and JS inlined from ``assets/`` (no CDN, no file route)
-    GET  /api/pair     ?annotator=NAME -> {"pair", "view", what to draw..., "progress": [done, total]}
-                       or {"done": true, "progress": ...}
-    POST /api/answer   {"annotator", "pair", "label", "nonce", "response_ms"} -> the next pair
-    POST /api/undo     {"annotator", "nonce"} -> the pair taken back, shown again
-
-Safe by default (``docs/labelling.md``): it binds 127.0.0.1; a wrong or missing token is a 403 (compared in
-constant time); a ``Host`` other than the loopback names is a 400 (DNS rebinding); a body over ``MAX_BODY``
-bytes is a 413, one that is not a JSON object of exactly the expected keys and types a 400; an annotator
-name, pair id or nonce outside its pattern a 400; an answer to a pair the annotator is not shown, or a
-replayed nonce, a 409 (``answer_log.py``). No route takes a path: the server reads only its session's files,
-so no parameter can name another. A refused request writes nothing.
+Routes (each needs ``?token=``; anything else is a 404): ``GET /`` the page (CSS and JS inlined from
+``assets/``, no CDN), ``GET /api/pair``, ``POST /api/answer``, ``POST /api/undo``. Safe by default
+(docs/labelling.md): it binds 127.0.0.1; a wrong token is a 403 (compared in constant time); a ``Host`` other
+than the loopback names a 400 (DNS rebinding); a body over ``MAX_BODY`` a 413, one not of exactly the expected
+keys, types and patterns a 400; an answer to a pair the annotator is not shown, or a replayed nonce, a 409.
+No route takes a path, so no parameter can name a file outside the session. A refused request writes nothing.
 """
 
 from __future__ import annotations

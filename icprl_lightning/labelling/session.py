@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from icprl_lightning.io import write_json_atomic
+from icprl_lightning.io import write_atomic, write_json_atomic
 from icprl_lightning.labelling.answer_log import AnswerLog
 from icprl_lightning.labelling.pairs import VIEWS, PairSource
 
@@ -75,12 +75,7 @@ def open_session(path: str | Path, view: str | None = None, pairs: int | None = 
                   "seed": 0 if seed is None else seed}
         path.mkdir(parents=True, exist_ok=True)
         arrays = VIEWS[view]().build(pairs, config["seed"])
-        tmp = path / f".queue.npz.tmp-{os.getpid()}"
-        with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path / "queue.npz")
+        write_atomic(path / "queue.npz", lambda f: np.savez(f, **arrays))
         write_json_atomic(meta, config)  # last: a session.json means a whole queue
     with np.load(path / "queue.npz", allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}

@@ -7,18 +7,11 @@ query tokens. Context tokens attend causally to earlier context tokens. Query q 
 sequence therefore scores its queries against many context sizes at once, and at deployment a query
 that sees the whole context is exactly the last token of the sequence:
 
-* ``forward(context, queries, visible)`` — training: all tokens in one pass, mask as above;
-* ``causal(tokens)`` — one causal pass over T tokens with the fused causal kernel (``is_causal``), output at
-  every position: the "merged" layout of ``models/policy.py``, which fuses each query into a context slot;
-* ``encode(context)`` — deployment: run the context once and keep every layer's keys and values;
-* ``query(cache, queries)`` — each act(): run only the new query tokens against the cache;
-* ``empty_cache(batch)`` / ``extend(cache, tokens)`` — online deployment: start from no context and
-  append each new context token to the cache in place (it attends to every earlier context token and
-  itself, as in ``encode``), never re-encoding what is already there.
-
-``query(encode(c), q)`` equals ``forward(c, q, visible=[T] * Q)``, and ``extend`` token by token from
-``empty_cache`` equals ``encode`` (tested). An empty context is a cache of length 0: a query on it takes
-position 0, as ``forward`` gives a query with ``visible = 0``.
+``forward`` trains on all tokens in one pass; ``causal`` is one plain causal pass (the "merged" layout of
+``models/policy.py``); at deployment ``encode`` runs the context once into a KV cache, ``query`` runs only the
+new query tokens against it, and ``empty_cache`` / ``extend`` grow the cache one context token at a time
+online, never re-encoding what is already there. ``query(encode(c), q)`` equals ``forward(c, q, visible=[T] *
+Q)`` and ``extend`` token by token equals ``encode`` (tested). An empty context is a cache of length 0.
 """
 
 from __future__ import annotations

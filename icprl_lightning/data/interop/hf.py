@@ -1,17 +1,10 @@
 """Our datasets as Hugging Face ``datasets`` tables: a ``DatasetDict`` saved to disk (Arrow), or Parquet files.
 
-Every split is one table with one row per context and one column per field, so ``load_from_disk(OUT)["train"]``
-(or ``load_dataset("parquet", data_files=...)``) gives rows with the store's field names. A field's per-row
-shape becomes its feature: ``[N]`` a ``Value``, ``[N, T]`` a ``List(Value, length=T)``, ``[N, T, S]`` an
-``Array2D((T, S))`` (up to ``Array5D``; ``[N, 0]`` a ``List`` of empty lists), each with the store's dtype
-(``int8`` actions, ``uint8`` labels, ``float32`` states). A split whose fields disagree in row count (the
-``tasks`` split: train and test goals) is one table per field, named ``<split>.<field>``.
-
-Provenance (``provenance.py``): the manifest travels as JSON, with the ``{table: [split, fields]}`` layout —
-in an Arrow export in every table's ``DatasetInfo.description`` (``dataset_info.json``, kept by
-``save_to_disk`` / ``load_from_disk``), in a Parquet export in each file's key-value metadata under ``icprl``
-(kept by pyarrow; ``datasets``' own Parquet reader drops it, so the import reads Parquet with pyarrow). Nothing
-here touches the Hugging Face cache: tables are built in memory and read from the given path.
+One table per split, one row per context, one column per field (a field's per-row shape becomes its feature:
+docs/data_formats.md); a split whose fields disagree in row count (``tasks``) is one table per field,
+``<split>.<field>``. The manifest travels as JSON (``provenance.py``): in each Arrow table's
+``DatasetInfo.description``, in each Parquet file's key-value metadata under ``icprl`` (``datasets``' own
+Parquet reader drops it, so the import reads Parquet with pyarrow). Nothing here touches the Hugging Face cache.
 """
 
 from __future__ import annotations

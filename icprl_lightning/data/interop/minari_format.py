@@ -1,23 +1,11 @@
 """Reward contexts as Minari datasets: each context row an episode of observations, actions and rewards.
 
-Minari models episodes: T actions and rewards and the T + 1 observations around them. Of our context kinds only
-the reward contexts D^R = {s_j, a_j, r_j, s'_j} (``reward``, DPT's and DIT's) are episodes, and only where each
-step's next state is the following step's state (rollouts; contexts of independent transitions are refused).
-Preference contexts (``step_preference``, ``trajectory_preference``) hold pairs and labels, and
-``reward_trajectory`` pairs hold no state after their last action: all are refused, naming the formats that
-do carry them (``hf``, ``parquet``).
-
-Layout under ``--out`` (the Minari root: ``MINARI_DATASETS_PATH`` points at it only while writing or reading,
-never at the user's home): a namespace ``icprl`` whose metadata holds the provenance (``provenance.py``) and the
-splits that are not episodes (the ``tasks`` split's goals) as exact JSON arrays, and one Minari dataset per
-context split, ``icprl/<split>-v0``. Episode ``i`` of a split is its row ``i``: ``observations`` =
-``states[i]`` followed by ``next_states[i, -1]``, ``actions``, ``rewards``, ``terminations`` all false,
-``truncations`` true at the last step; every other field of the row is in the episode's ``infos`` — per-step
-fields (``query_states``, ``optimal_actions``) with their last step repeated for the (T + 1)-th entry,
-per-row fields (``task_index``, ``quality``) repeated T + 1 times, each as ``[T + 1, k]`` (a scalar as
-``k = 1``: Minari's Arrow storage cannot read 1-D infos back); the manifest's shapes restore them. Spaces:
-``Box(-inf, inf, (S,), float32)`` observations, ``Discrete(n)`` actions with n one more than the largest stored
-action (the store keeps no action count) or ``Box(-inf, inf, (A,), float32)``.
+Minari episodes need T + 1 observations, so only reward contexts whose next states chain (rollouts) are
+episodes; other kinds are refused, naming the formats that carry them (``hf``, ``parquet``). The layout
+(docs/data_formats.md): a namespace ``icprl`` whose metadata holds the provenance and the non-episode splits,
+one dataset ``icprl/<split>-v0`` per context split, episode ``i`` = row ``i``, the row's other fields in
+``infos`` as ``[T + 1, k]`` (Minari's Arrow storage cannot read 1-D infos back). ``MINARI_DATASETS_PATH``
+points at ``--out`` only while writing or reading, never at the user's home.
 """
 
 from __future__ import annotations

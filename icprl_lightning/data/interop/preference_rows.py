@@ -1,34 +1,12 @@
-"""Foreign preference data as our contexts: TRL-style chosen/rejected rows and imitation/B-Pref-style label arrays.
+"""Foreign preference data as our contexts: TRL-style chosen/rejected rows (``--format trl``) and imitation/B-Pref
+segment-pair label arrays (``--format bpref``); the columns, label conventions and ties are in
+docs/data_formats.md.
 
-**TRL rows** (``--format trl``): a table — a Parquet file, or a Hugging Face ``Dataset`` / ``DatasetDict``
-saved to disk (its ``train`` split, or its only one) — of preference rows, ``chosen`` over ``rejected``:
-
-* ``--kind step_preference`` (I-PRL): ``prompt`` the state s (a list of S floats), ``chosen`` / ``rejected``
-  the compared actions a⁺, a⁻ (an index, or a list of A floats). Rows sharing a ``context_id`` (optional) form
-  one context, its steps in table order, every context of the same length T; without ``context_id`` each row is
-  a context of one step.
-* ``--kind trajectory_preference`` (T-PRL): ``chosen`` / ``rejected`` each a struct ``{"states": [H][S],
-  "actions": [H] or [H][A]}``; no ``prompt`` (the trajectories carry their states).
-* optional ``task_index`` (an integer; constant within a context): which rows share a task.
-
-A TRL row names the winner by its column, so the pair is put in a seeded random order (``--seed``): ``actions``
-/ ``ξ_a`` is the chosen one in about half of the contexts, ``preferred`` says which, and no label is constant.
-
-**Label arrays** (``--format bpref``): an ``.npz`` (or directory of ``.npy``) of segment pairs with a label, as
-imitation's ``PreferenceDataset`` and B-Pref's reward learner keep them: ``states_1``, ``states_2`` [N, H, S],
-``actions_1``, ``actions_2`` [N, H] or [N, H, A], ``label`` [N] (or [N, 1]), optional ``task_index``. They
-become T-PRL pairs (ξ_a = segment 1). ``--label-convention imitation`` (default): the label is the probability
-that segment 1 is preferred, in {0, 0.5, 1}. ``bpref``: B-Pref's ``1 * (return_1 < return_2)``, so 1 means
-segment **2** won, and −1 (or 0.5) marks "equally preferable".
-
-**Ties (0.5).** ICPO and RewardGen train on soft labels, from a dataset whose manifest says ``soft_labels``
-(``icprl label --export`` writes them; every other method refuses one). This import keeps labels of 0 and 1: a
-tie is never stored as 0.5 nor turned into a hard label here: ``--ties refuse`` (default) stops with the number
-of tie rows, ``--ties drop`` imports the others (``source_row`` still names each kept row's row in the source,
-and the manifest's info says how many were dropped).
-
-Either way the result goes through ``importer.import_preferences``: the same field checks, dtypes, task split
-and store layout as an ``.npz`` import.
+A TRL row names the winner by its column, so the pair is put in a seeded random order (``--seed``) and no label
+is constant. B-Pref's label ``1 * (return_1 < return_2)`` means segment **2** won. A tie is never stored as 0.5
+nor made a hard label here: ``--ties refuse`` (default) stops, ``--ties drop`` imports the others
+(``source_row`` still names each kept row). The result goes through ``importer.import_preferences``: the same
+checks, dtypes, task split and store layout as an ``.npz`` import.
 """
 
 from __future__ import annotations

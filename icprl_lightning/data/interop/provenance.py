@@ -1,14 +1,10 @@
 """The manifest that travels with an exported dataset, and the byte-for-value check that brings it back.
 
-An export (``hf``, ``parquet``, ``minari``) carries the dataset's whole ``manifest.json`` (schema version,
-generator config, seed, info, and per file its shape, dtype and SHA-256) inside the foreign format's own
-metadata, as the JSON object ``provenance(dataset)``. Importing an export is ``restore``: every array read
-back is cast to the dtype and shape its manifest entry declares and saved as ``.npy`` bytes in memory, and
-those bytes must have the SHA-256 the manifest recorded; only then is the dataset written, by
-``store.write_dataset`` with the manifest's own config and info. So an import either reproduces the exported
-dataset file for file (the same ``.npy`` bytes, the same ``manifest.json``) or is refused, naming the split
-and field that changed. An export edited in its foreign form (rows filtered, values rescaled) is therefore
-refused: its manifest no longer describes it, and a generated dataset's config must not vouch for other data.
+An export carries the dataset's whole ``manifest.json`` in the foreign format's metadata (``provenance``).
+``restore`` casts every array read back to its manifest entry's dtype and shape and requires the SHA-256 the
+manifest recorded before writing anything: an import reproduces the exported dataset file for file or is
+refused, naming the split and field. An export edited in its foreign form is therefore refused: a generated
+dataset's config must not vouch for other data.
 """
 
 from __future__ import annotations

@@ -1,14 +1,7 @@
-"""Single-episode Gymnasium env for one DarkRoom goal, for Stable-Baselines3 (the DQN baseline).
-
-The same dynamics, reward and start distribution as ``DarkRoomVectorEnv`` (``families/darkroom/env.py``), one
-episode at a time: obs is the agent's (x, y) cell as float32 [2] (the goal is never observed; it is a
-constant of the env), ``Discrete(5)`` actions (up, down, left, right, no-op), r = 1 when a move lands
-on the goal, truncation at H = 100, and termination on entering the goal only with the family's
-``terminate_on_goal`` flag. ``info["success"]`` is true once the agent stands on the goal.
-
-``darkroom_env`` and ``darkroom_vector_env`` build the single and the vector env from plain keyword
-arguments: they are the entry points of the Gymnasium id ``icprl/DarkRoom-v0``
-(``families/registration.py``), so ``gymnasium.make`` and ``gymnasium.make_vec`` accept the same kwargs.
+"""Single-episode Gymnasium env for one DarkRoom goal, for Stable-Baselines3 (the DQN baseline): the dynamics,
+reward and starts of ``DarkRoomVectorEnv`` one episode at a time; ``info["success"]`` once the agent stands on
+the goal. ``darkroom_env`` and ``darkroom_vector_env`` are the entry points of the Gymnasium id
+``icprl/DarkRoom-v0`` (``families/registration.py``).
 """
 
 from __future__ import annotations

@@ -1,23 +1,12 @@
 """Learning histories on DarkRoom: tabular Q-learning from scratch, many goals at once (the data of Algorithm
 Distillation, Laskin et al. 2022, "In-context Reinforcement Learning with Algorithm Distillation").
 
-AD distills a reinforcement-learning *algorithm* rather than a policy: its training data are the whole learning
-histories of a source learner, every (s_h, a_h, r_h) of every episode from its first, uninformed one to its
-last. The source here is one-step tabular Q-learning (Watkins) with ε-greedy exploration, one Q table per goal
-[N, size, size, 5], all N learners stepping together as integer arrays: the only Python loop is over time steps.
-
-Per step, for learner n at cell s:
-
-* act: with probability ε_e (the episode's exploration rate) a uniform action, otherwise argmax_a Q_n(s, a)
-  with ties broken uniformly (a fresh table is all ties: the first episodes are random walks);
-* update: Q_n(s, a) ← Q_n(s, a) + α (r + γ max_a' Q_n(s', a') − Q_n(s, a)). The episode's last step is a time
-  limit, not a terminal state, so it bootstraps too.
-
-ε_e falls linearly from ``epsilon_start`` at episode 0 to ``epsilon_end`` at episode ``epsilon_decay_episodes``
-and stays there. Episodes are the family's (H steps, a uniform start from the learner's generator, r = 1 on
-every step that lands on the goal). The default knobs make the mean return rise over the whole history on the
-training goals (``tests/methods/test_ad.py`` checks it): a wide rise, since AD can
-only distill the improvement the history shows.
+AD's training data are the whole learning histories of a source learner, every (s_h, a_h, r_h) from its first,
+uninformed episode to its last. The source is one-step tabular Q-learning (Watkins) with ε-greedy exploration
+(ties broken uniformly, so the first episodes are random walks), Q(s, a) ← Q(s, a) + α (r + γ max_a' Q(s', a')
+− Q(s, a)); the episode's last step is a time limit, not a terminal state, so it bootstraps too. One Q table per
+goal, all N learners stepping together as integer arrays. The default knobs make the mean return rise over the
+whole history (``tests/methods/test_ad.py``): AD can only distill the improvement the history shows.
 """
 
 from __future__ import annotations

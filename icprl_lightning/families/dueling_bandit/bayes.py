@@ -7,12 +7,9 @@ has lower expected regret than the Bayes rule, which minimizes the posterior exp
 
 * ``"weak"``: argmax_{a ≠ a'} E[max(r(a), r(a')) | D], since E[min(R* − r(a), R* − r(a')) | D] =
   E[R* | D] − E[max(r(a), r(a')) | D]; the Bayes-optimal duel for weak regret.
-* ``"strong"``: a = a' = argmax_a E[r(a) | D] = argmax_a E[θ | D]ᵀφ(a) (utilities are linear in θ), the
-  Bayes-optimal duel for strong regret (Δ(a) + Δ(a')) / 2 when self-duels are allowed, as for DTS: the
-  posterior expectation is linear, E[(Δ(a) + Δ(a')) / 2 | D] = (E[Δ(a) | D] + E[Δ(a') | D]) / 2 with
-  Δ(a) = R* − r(a), and each term is at least E[Δ(â) | D] with â this arm, the minimizer of E[Δ(a) | D] =
-  E[R* | D] − E[r(a) | D]; so both arms at â attain the minimum. The arm is also the Bayes-optimal single
-  arm, the reference for ICPO's first arm.
+* ``"strong"``: a = a' = argmax_a E[θ | D]ᵀφ(a), the Bayes-optimal duel for strong regret when self-duels are
+  allowed: E[(Δ(a) + Δ(a')) / 2 | D] is the mean of two terms each minimized by that arm (Δ(a) = R* − r(a)).
+  It is also the Bayes-optimal single arm, the reference for ICPO's first arm.
 * ``"random_second"``: the Bayes-optimal arm and a uniformly random other arm, ICPO's protocol (paper:
   the first arm by argmax, the second at random), so ICPO's weak regret has a like-for-like floor.
 
@@ -23,10 +20,8 @@ How the posterior expectations are computed (``posterior``):
 * ``"importance"``: the same draws from a widened Laplace proposal, self-normalized importance weights
   (``bt_posterior.importance_sample``), so the expectations converge to the exact posterior's.
 
-``laplace_check`` compares the two on a few problems (effective sample size, distance of the exact
-posterior mean from the Laplace mode in posterior standard deviations, agreement of the chosen arms).
-The reference is an expectation over problems: on a finite set of held-out problems a learner can beat it
-by chance, within the standard error.
+``laplace_check`` compares the two. The reference is an expectation over problems: on a finite set of
+held-out problems a learner can beat it by chance, within the standard error.
 """
 
 from __future__ import annotations

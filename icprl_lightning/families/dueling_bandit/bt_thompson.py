@@ -9,15 +9,11 @@ Thompson Sampling", NeurIPS). Each round draws two independent samples θ¹, θ�
     a' = argmax_{b ≠ a} θ²ᵀφ(b)          (always a different arm)
 
 the two-sample structure of Double Thompson Sampling (Wu & Liu 2016, "Double Thompson Sampling for
-Dueling Bandits", NeurIPS) with the K-armed Beta posteriors replaced by the shared linear model. Related
-contextual-dueling versions: Li et al. 2024, "Feel-Good Thompson Sampling for Contextual Dueling Bandits",
-ICML (a different posterior and pair rule). Unlike DTS this rule never self-duels: the second arm is the
-best of the *other* arms under θ², so the weak regret is 0 as soon as θ¹ ranks the best arm first.
-
-Knobs: ``prior_var`` (v; the family's own prior is 1/d), ``scale`` (s, the posterior inflation of Agrawal
-& Goyal 2013, "Thompson Sampling for Contextual Bandits with Linear Payoffs", ICML; 1 = the Laplace
-posterior itself), ``newton_steps`` (warm-started Newton steps per round); choose them on training problems
-only (``tuning.py``).
+Dueling Bandits", NeurIPS) with the K-armed Beta posteriors replaced by the shared linear model (a different
+posterior and pair rule: Li et al. 2024, "Feel-Good Thompson Sampling for Contextual Dueling Bandits", ICML).
+It never self-duels, so the weak regret is 0 as soon as θ¹ ranks the best arm first. ``scale`` is the
+posterior inflation of Agrawal & Goyal 2013 ("Thompson Sampling for Contextual Bandits with Linear Payoffs",
+ICML; 1: the Laplace posterior); the knobs are chosen on training problems only (``tuning.py``).
 """
 
 from __future__ import annotations

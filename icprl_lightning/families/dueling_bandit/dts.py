@@ -24,6 +24,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from icprl_lightning.families.dueling_bandit.bt_posterior import win_counts
+from icprl_lightning.families.dueling_bandit.linear_baselines import run_online
+
 
 class DoubleThompsonSampling:
     """DTS on ``n_problems`` independent ``n_arms``-armed dueling bandits; all randomness from ``rng``.
@@ -81,7 +84,7 @@ class DoubleThompsonSampling:
         """Record one duel per problem; ``preferred[p] = 1`` means ``first[p]`` won."""
         first = self._check_arms("first", first)
         second = self._check_arms("second", second)
-        won = self._check_labels(preferred, (self.n_problems,))
+        won = self._check_labels(preferred, self.n_problems)
         winner = np.where(won, first, second)
         loser = np.where(won, second, first)
         # One duel per problem, so the fancy-indexed targets are distinct and += is exact.
@@ -93,18 +96,8 @@ class DoubleThompsonSampling:
         arms_first = np.asarray(arms_first)
         if arms_first.ndim != 2 or arms_first.shape[0] != self.n_problems:
             raise ValueError(f"arms_first must have shape [P={self.n_problems}, T], got {arms_first.shape}")
-        shape = arms_first.shape
-        arms_first = self._check_arms("arms_first", arms_first, shape)
-        arms_second = self._check_arms("arms_second", arms_second, shape)
-        won = self._check_labels(preferred, shape)
-        winner = np.where(won, arms_first, arms_second)
-        loser = np.where(won, arms_second, arms_first)
-        problem = np.broadcast_to(self._problems[:, None], shape)
-        informative = winner != loser
-        flat = (problem * self.n_arms + winner) * self.n_arms + loser
-        counts = np.bincount(flat[informative], minlength=self.wins.size)
-        self.wins += counts.reshape(self.wins.shape)
-        self.t += shape[1]
+        self.wins += win_counts(arms_first, arms_second, preferred, self.n_arms)
+        self.t += arms_first.shape[1]
 
     def _bounds(self, wins: np.ndarray, losses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Elementwise (u, l) from win and loss counts, with the N = 0 conventions (1 and 0)."""
@@ -126,9 +119,9 @@ class DoubleThompsonSampling:
         copeland += 0.5 * self.rng.random((self.n_problems, self.n_arms))
         return np.where(candidates, copeland, -np.inf).argmax(axis=-1)
 
-    def _check_arms(self, name: str, arms: np.ndarray, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    def _check_arms(self, name: str, arms: np.ndarray) -> np.ndarray:
         arms = np.asarray(arms)
-        shape = (self.n_problems,) if shape is None else shape
+        shape = (self.n_problems,)
         if arms.shape != shape or not np.issubdtype(arms.dtype, np.integer):
             raise ValueError(f"{name} must be an integer array of shape {list(shape)}, "
                              f"got {arms.dtype} {list(arms.shape)}")
@@ -137,10 +130,10 @@ class DoubleThompsonSampling:
         return arms.astype(np.int64, copy=False)
 
     @staticmethod
-    def _check_labels(preferred: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    def _check_labels(preferred: np.ndarray, n_problems: int) -> np.ndarray:
         preferred = np.asarray(preferred)
-        if preferred.shape != shape:
-            raise ValueError(f"preferred must have shape {list(shape)}, got {list(preferred.shape)}")
+        if preferred.shape != (n_problems,):
+            raise ValueError(f"preferred must have shape [{n_problems}], got {list(preferred.shape)}")
         if preferred.size and not np.isin(preferred, (0, 1)).all():
             raise ValueError("preferred must hold 0/1 labels (1 = first arm preferred)")
         return preferred.astype(bool)
@@ -158,14 +151,4 @@ def run_dts(preference_matrix: np.ndarray, horizon: int, rng: np.random.Generato
     if preference_matrix.ndim != 3 or preference_matrix.shape[1] != preference_matrix.shape[2]:
         raise ValueError(f"preference_matrix must have shape [P, A, A], got {list(preference_matrix.shape)}")
     n_problems, n_arms, _ = preference_matrix.shape
-    dts = DoubleThompsonSampling(n_arms, n_problems, alpha, rng=rng)
-    arms_first = np.empty((n_problems, horizon), dtype=np.int64)
-    arms_second = np.empty((n_problems, horizon), dtype=np.int64)
-    preferred = np.empty((n_problems, horizon), dtype=np.uint8)
-    problems = np.arange(n_problems)
-    for h in range(horizon):
-        first, second = dts.select()
-        label = (rng.random(n_problems) < preference_matrix[problems, first, second]).astype(np.uint8)
-        dts.update(first, second, label)
-        arms_first[:, h], arms_second[:, h], preferred[:, h] = first, second, label
-    return {"arms_first": arms_first, "arms_second": arms_second, "preferred": preferred}
+    return run_online(DoubleThompsonSampling(n_arms, n_problems, alpha, rng=rng), preference_matrix, horizon, rng)

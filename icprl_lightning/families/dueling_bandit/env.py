@@ -9,18 +9,9 @@ and the goal is the best arm a* = argmax_a r_τ(a). The paper's Gaussian observa
 (κ² = 0.3) plays no role here: labels depend on expected rewards only. Paper sizes: |A| = 20, d = 10,
 H = 200.
 
-Preference contexts (the paper's three behaviour policies) are dicts of numpy arrays
-``{"arms_first": int64 [n, H], "arms_second": int64 [n, H], "preferred": uint8 [n, H]}`` with
-``preferred = 1`` when the first arm won. A context never carries θ or rewards.
-
-* ``uniform_pairs_context``: a uniformly random pair of distinct arms per step (the pretraining data).
-* ``dirichlet_context``: each problem draws a behaviour distribution w ~ Dirichlet(1, …, 1); each step
-  draws two distinct arms from w *without replacement* (first ~ w, second ~ w renormalized over the
-  other arms), so both arms follow the behaviour policy.
-* ``dts_context``: Double Thompson Sampling played online for H steps; its pairs may repeat an arm
-  (DTS duels a confident champion against itself).
-
-Everything is vectorized over problems; only DTS loops over the H steps, since it is adaptive.
+Preference contexts (the paper's three behaviour policies: uniform pairs, Dirichlet, DTS) are dicts
+``{"arms_first": int64 [n, H], "arms_second": int64 [n, H], "preferred": uint8 [n, H]}`` (1: the first arm
+won); a context never carries θ or rewards. DTS's pairs may repeat an arm (a champion against itself).
 """
 
 from __future__ import annotations
@@ -152,8 +143,6 @@ class LinearDuelingBanditFamily(Family):
     def dts_context(self, theta: np.ndarray, rng: np.random.Generator) -> Context:
         """Double Thompson Sampling played online for H steps on each problem, BT labels."""
         return run_dts(self.preference_matrix(theta), self.horizon, rng, alpha=self.dts_alpha)
-
-    # --- helpers -----------------------------------------------------------------------------------
 
     def _labelled(self, theta: np.ndarray, first: np.ndarray, second: np.ndarray,
                   rng: np.random.Generator) -> Context:

@@ -1,39 +1,25 @@
-"""Feature-aware dueling-bandit baselines: their shared state and how they are run, online and offline.
+"""Feature-aware dueling-bandit baselines (``maxinp.MaxInP``, ``bt_thompson.BTThompsonSampling``): their shared
+state and how they are run, online (``run_online``) and offline (``prefix_duels``, the protocol of
+``evaluation/duels.py``; ``prefix_recommendations`` for ICPO's).
 
-Double Thompson Sampling (``dts.py``) is K-armed: it ignores the arm features φ that every problem of the
-family shares. The baselines here model the family's structure, P(a ≻ a') = σ(θᵀ(φ(a) − φ(a')) / T), and
-estimate θ from the comparisons (``bt_posterior.py``):
-
-* ``maxinp.MaxInP`` — UCB-style, Saha (2021), "Optimal Algorithms for Stochastic Contextual Preference
-  Bandits", NeurIPS;
-* ``bt_thompson.BTThompsonSampling`` — Thompson sampling on a Laplace posterior over θ.
-
-Both follow DTS's protocol: ``update`` records one duel per problem, ``observe_context`` ingests an offline
-context, ``select`` returns the next duel ``(first [P], second [P])`` and ``recommend`` the single arm the
-learner believes best. Everything is vectorized over P problems; the drivers loop over rounds only.
-
-* ``run_online``: play H rounds against a preference matrix and return the duels (a context dict, like
-  ``dts.run_dts``) and, on request, the arm recommended after each answer.
-* ``prefix_duels``: the offline protocol of ``evaluation/duels.py`` — after each prefix D_{1:h} of a
-  fixed context, the learner's duel; column h − 1 is the duel after h comparisons, scored by weak regret
-  exactly as ICPO's and DTS's duels are. ``prefix_recommendations``: the learner's best-arm guess after
-  each prefix, for ICPO's protocol (that arm and a uniformly random other one).
-* ``duel_regrets``: weak regret min(Δ(a), Δ(a')) and strong regret (Δ(a) + Δ(a')) / 2, Δ(a) = R* − r(a)
-  (``metrics.weak_regret`` / ``metrics.strong_regret`` on numpy arrays of any trailing shape; the strong
-  regret is the standard average of the two gaps, see ``metrics``).
-
-Hyperparameters (prior variance, exploration scale, posterior scale) must be chosen on training problems
-only; ``tuning.py`` does that on the family's training split.
+Unlike the K-armed DTS (``dts.py``) they model the family's structure, P(a ≻ a') = σ(θᵀ(φ(a) − φ(a')) / T), and
+estimate θ from the comparisons (``bt_posterior.py``). They follow DTS's protocol (``update``,
+``observe_context``, ``select``, ``recommend``), vectorized over P problems. Their hyperparameters are chosen
+on training problems only (``tuning.py``).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from icprl_lightning.families.dueling_bandit.bt_posterior import BradleyTerryPosterior, check_duels, win_counts
 from icprl_lightning.validation import check_int
+
+if TYPE_CHECKING:
+    from icprl_lightning.families.dueling_bandit.dts import DoubleThompsonSampling
 
 Duels = tuple[np.ndarray, np.ndarray]
 
@@ -104,12 +90,13 @@ class LinearDuelingLearner(ABC):
         """The next duel of every problem: ``(first [P], second [P])`` int64 arm indices."""
 
 
-def run_online(learner: LinearDuelingLearner, preference_matrix: np.ndarray, horizon: int,
+def run_online(learner: LinearDuelingLearner | DoubleThompsonSampling, preference_matrix: np.ndarray, horizon: int,
                rng: np.random.Generator, recommend: bool = False) -> dict[str, np.ndarray]:
-    """Play ``horizon`` rounds; labels y ~ Bernoulli(``preference_matrix[p, first, second]``) from ``rng``.
+    """Play ``horizon`` rounds; labels y ~ Bernoulli(``preference_matrix[p, first, second]``) from ``rng``, drawn
+    after each ``select`` (for DTS, ``dts.run_dts``, the same generator as its own draws).
 
     ``preference_matrix`` is ``[P, A, A]`` (``LinearDuelingBanditFamily.preference_matrix``); returns
-    ``{"arms_first", "arms_second": int64 [P, H], "preferred": uint8 [P, H]}`` like ``dts.run_dts`` and, with
+    ``{"arms_first", "arms_second": int64 [P, H], "preferred": uint8 [P, H]}`` and, with
     ``recommend``, ``"recommended"`` int64 [P, H]: the learner's ``recommend``-ed arm after answer h.
     """
     check_int("run_online", "horizon", horizon, 1)
@@ -133,8 +120,8 @@ def run_online(learner: LinearDuelingLearner, preference_matrix: np.ndarray, hor
     return out
 
 
-def prefix_duels(learner: LinearDuelingLearner, arms_first: np.ndarray, arms_second: np.ndarray,
-                 preferred: np.ndarray) -> Duels:
+def prefix_duels(learner: LinearDuelingLearner | DoubleThompsonSampling, arms_first: np.ndarray,
+                 arms_second: np.ndarray, preferred: np.ndarray) -> Duels:
     """The learner's duel after each prefix D_{1:h}, h = 1..H, of a fixed context (each ``[P, H]``).
 
     Returns ``(first, second)`` int64 ``[P, H]``: observe comparison h, then select — as

@@ -1,19 +1,10 @@
 """Choosing the feature-aware baselines' hyperparameters on training problems only.
 
-A baseline's knobs (``maxinp.MaxInP``: β and the prior variance; ``bt_thompson.BTThompsonSampling``: the
-prior variance and the posterior scale) are picked by a small grid search on the family's *training*
-problems — the θ's that ``data.settings.bandit_duels.BanditDuels`` pretrains ICPO on (``training_problems``
-draws the same ones from the same seed stream) — never on the held-out problems the tables report. The
-objective is the offline protocol of the evaluation (``linear_baselines.prefix_duels``) on uniform-pair
-contexts, the pretraining distribution: the weak regret of the baseline's duel after each prefix h,
-averaged over h = 1..``horizon`` (the "AUC" of ``evaluation.duels.summarize_regret``). Every grid point sees
-the same contexts and the same learner seed.
-
-    icprl baseline tune-bandit --problems 300 --horizon 50 --seed 0
-
-prints each grid point's score, the choice, and, on the same contexts, DTS and the Bayes reference
-(``bayes.BayesReference``, the floor no learner beats in expectation) with a check of its Laplace
-approximation.
+A small grid search on the family's *training* problems (the θ's ICPO pretrains on, ``training_problems``),
+never on the held-out ones the tables report. The objective is the evaluation's offline protocol
+(``linear_baselines.prefix_duels``) on uniform-pair contexts: weak regret averaged over prefixes h = 1..H (the
+"AUC"). Every grid point sees the same contexts and learner seed. ``icprl baseline tune-bandit --problems 300
+--horizon 50 --seed 0`` prints the grid, the choice, DTS and the Bayes reference on the same contexts.
 """
 
 from __future__ import annotations
@@ -103,8 +94,5 @@ def dts_score(family: LinearDuelingBanditFamily, theta: np.ndarray, context: dic
               seed: int) -> dict[str, float]:
     """DTS on the same contexts, as ``evaluation.duels.dts_duels`` plays it."""
     dts = DoubleThompsonSampling(family.n_arms, len(theta), family.dts_alpha, rng=np.random.default_rng(seed))
-    first, second = np.empty_like(context["arms_first"]), np.empty_like(context["arms_first"])
-    for h in range(context["arms_first"].shape[1]):
-        dts.update(context["arms_first"][:, h], context["arms_second"][:, h], context["preferred"][:, h])
-        first[:, h], second[:, h] = dts.select()
-    return offline_score((first, second), family.expected_rewards(theta))
+    duels = prefix_duels(dts, context["arms_first"], context["arms_second"], context["preferred"])
+    return offline_score(duels, family.expected_rewards(theta))

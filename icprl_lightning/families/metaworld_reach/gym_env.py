@@ -1,20 +1,11 @@
 """Single-episode Gymnasium env for Meta-World Reach, for Stable-Baselines3 (SAC oracle and baseline).
 
-``ReachGoalEnv`` is one stock ``reach-v3`` (metaworld 3.x, MuJoCo) with this project's task conventions
-(see ``families/metaworld_reach/env.py``): latent reward r_h = −‖tcp_h − goal‖, ``info["success"]`` when
-‖tcp − goal‖ ≤ 0.05, no early termination, truncation at H = 150. At each reset it draws one goal of
-``goals`` [G, 3] from ``self.np_random`` (or takes ``options={"goal_index": i}``) and a puck position
-(a distractor) from the same generator, so ``reset(seed=s)`` and an action sequence fix every step.
-
-``goal_visible`` chooses what obs[36:39] holds. Hidden (zeros, the default) is what an ICPRL agent sees
-and is enough for a single-goal env, where the goal is a constant. Visible is for the goal-conditioned
-SAC oracle (``families/metaworld_reach/sac.py``), whose actor and critic must tell the goals apart; it is privileged
-information and never reaches a preference learner. ``oracle_state()`` gives the privileged
-``ReachOracleState`` (hand, TCP, mocap, goal) as a batch of one, for the scripted expert in evaluation.
-
-``reach_env`` and ``reach_vector_env`` build the single env (one goal) and ``ReachVectorEnv`` from plain
-keyword arguments: they are the entry points of the Gymnasium id ``icprl/MetaWorldReach-v0``
-(``families/registration.py``), so ``gymnasium.make`` and ``gymnasium.make_vec`` accept the same kwargs.
+``ReachGoalEnv`` is one stock ``reach-v3`` with the conventions of ``env.py`` (latent reward, success radius, no
+early termination). At each reset it draws one goal of ``goals`` [G, 3] (or ``options={"goal_index": i}``) and
+the puck from ``self.np_random``, so ``reset(seed=s)`` and an action sequence fix every step.
+``goal_visible=True`` writes the goal into obs[36:39] for the goal-conditioned SAC oracle only: privileged, it
+never reaches a preference learner. ``reach_env`` and ``reach_vector_env`` are the entry points of the
+Gymnasium id ``icprl/MetaWorldReach-v0`` (``families/registration.py``).
 """
 
 from __future__ import annotations

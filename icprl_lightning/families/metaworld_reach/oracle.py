@@ -63,6 +63,8 @@ from icprl_lightning.families.base import Oracle, TaskFamily
 from icprl_lightning.families.metaworld_reach.env import (
     ACTION_DIM,
     GOAL_SLICE,
+    HAND_HIGH,
+    HAND_LOW,
     HORIZON,
     ReachOracleState,
     latent_reward,
@@ -72,8 +74,6 @@ QUALITY_TARGETS: Mapping[str, float] = MappingProxyType({"low": 0.2, "medium": 0
 METAWORLD_GAIN = 5.0  # SawyerReachV3Policy: move(hand, to=goal, p=5)
 EXPERT_GAIN = 10.0
 MOCAP_STEP = 0.01  # SawyerXYZEnv.action_scale
-MOCAP_LOW = np.array([-0.5, 0.40, 0.05])  # reach-v3 hand_low == mocap_low
-MOCAP_HIGH = np.array([0.5, 1.0, 0.5])
 # Rows x, y, z; columns c0 (momentum), c1 (spring to the mocap), c2 (mocap velocity).
 HAND_DYNAMICS = np.array([[0.605, 0.103, 0.100], [0.899, 0.002, 0.078], [0.829, 0.021, 0.096]])
 DEFAULT_BT_TEMPERATURE = 0.02
@@ -83,7 +83,7 @@ _STATE_SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
 def expert_actions(state: ReachOracleState) -> np.ndarray:
-    """The default expert [B, 4]: a = (clip(5 (goal − tcp)), 0), metaworld's controller aimed at the TCP."""
+    """The default expert [B, 4]: a = (clip(10 (goal − tcp)), 0), metaworld's controller aimed at the TCP."""
     return _aim(state.tcp, state.goal, EXPERT_GAIN)
 
 
@@ -137,7 +137,7 @@ def _surrogate_returns(state: ReachOracleState, first: np.ndarray, horizon: int)
     push = np.clip(first[..., :3], -1.0, 1.0)
     ret = np.zeros(shape[:2])
     for _ in range(steps):
-        nxt_mocap = np.clip(mocap + MOCAP_STEP * push, MOCAP_LOW, MOCAP_HIGH)
+        nxt_mocap = np.clip(mocap + MOCAP_STEP * push, HAND_LOW, HAND_HIGH)  # the mocap box
         nxt = hand + c0 * (hand - prev) + c1 * (mocap - hand) + c2 * (nxt_mocap - mocap)
         prev, hand, mocap = hand, nxt, nxt_mocap
         ret += latent_reward(hand + tcp_offset, state.goal)

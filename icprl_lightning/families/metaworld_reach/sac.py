@@ -2,27 +2,19 @@
 policies and its critic as the A* estimate (appendices "Baseline Implementation Details" and
 "Pretraining Data Generation").
 
-Privileged: the SAC sees the goal (obs[36:39] filled in by ``ReachGoalEnv(goal_visible=True)``). Only
-data generation and evaluation use it; no preference learner receives its inputs or outputs except
-through the labels and behavior actions it produces.
+Privileged: the SAC sees the goal (``ReachGoalEnv(goal_visible=True)``); no preference learner receives its
+inputs or outputs except through the labels and behavior actions it produces.
 
-Per-task or goal-conditioned? One goal-conditioned SAC over the chosen goals, by default the 45
-training goals. The paper trains one SAC per task to convergence; on this project's CPU budget SB3's SAC
-runs ≈ 30 steps/s per core, so 45 separate runs to convergence (tens of thousands of steps each) would
-take a day, while the arm dynamics are identical across goals and only the goal differs, so one network
-whose actor and critic see the goal shares all that learning. Its critic Q(s, a; g) is goal-specific,
-which is all A* needs. The one difference from the paper: the behavior checkpoints are shared by the
-goals, so "20% of the final return" holds on average over the goals, not per goal. ``--goal-index i``
-trains the paper's per-task variant with the same code (a goal list of one).
+One goal-conditioned SAC over the chosen goals (default: the 45 training goals), not the paper's one SAC per
+task: on a CPU SB3's SAC runs ≈ 30 steps/s per core, so 45 runs to convergence would take a day, while the arm
+dynamics are shared and only the goal differs. Its critic Q(s, a; g) is goal-specific, which is all A* needs.
+The one difference: the behavior checkpoints are shared by the goals, so "20% of the final return" holds on
+average over the goals. ``--goal-index i`` trains the per-task variant with the same code.
 
-Checkpoints and quality. Every ``checkpoint_every`` steps (and at step 0, the untrained policy) the
-model is saved and evaluated on the same ``eval_episodes`` episodes (goals cycled, fixed seed), acting by
-*sampling* from the policy, as a behavior policy will. The last checkpoint is the converged policy π.
-A checkpoint's quality is its normalized return q = (R − R_uniform) / (R_final − R_uniform), uniform
-actions on the same episodes being 0 and π being 1; for each target (low/medium/high = 0.2/0.4/0.8)
-the checkpoint with q closest to it is the behavior policy. ``calibration`` has the scripted oracle's
-format, {quality: {target, achieved, ...}}, plus the checkpoint step and the return normalized by the
-scripted expert of ``families/metaworld_reach/oracle.py`` on the same episodes (``achieved_vs_expert``).
+Checkpoints are saved and evaluated every ``checkpoint_every`` steps (and at step 0) on the same episodes,
+acting by *sampling*, as a behavior policy will; the last is the converged policy π. A checkpoint's quality is
+q = (R − R_uniform) / (R_final − R_uniform), and per target the checkpoint with q closest is the behavior
+policy (``calibrate_checkpoints``; ``achieved_vs_expert`` normalizes by the scripted expert instead).
 
 Advantage. A*(s, a) ≈ Q̂(s, a) − (1/M) Σ_m Q̂(s, a'_m), a'_m ~ π(·|s), with Q̂ the minimum of SAC's twin
 critics (the value SAC's own policy update uses). Averaged over actions drawn from π it is zero up to

@@ -2,25 +2,12 @@
 Generation", "Meta-World (Reach-v2)").
 
 ``ReachSACTaskFamily`` is ``ReachTaskFamily`` (same goals, envs and split) whose oracle is an exported SAC
-oracle (``sac_weights.py``) instead of the scripted TCP expert:
-
-* behavior policies are SAC checkpoints at a share of the final policy's return (20/40/80%, and 50% for
-  T-PRL), acting by *sampling* from their squashed Gaussians. A behavior policy's *level* (what the generic
-  recipes call its mixing level p) is that share, the name of an exported checkpoint: level 0 is uniform
-  actions, level 1 the final policy π;
-* the optimal action (DPT/DP²T's label) is π's mean action tanh(μ(s));
-* the utility of an action is Q̂(s, a), the minimum of the final twin critic, so a Bradley–Terry label on
-  a pair at one state reads A*(s, a) − A*(s, a') = Q̂(s, a) − Q̂(s, a') (the Monte Carlo baseline
-  E_{a'~π} Q̂(s, a') of the paper's A* cancels in the difference).
-
-Calibration does not search: the checkpoints were chosen when the oracle was exported. ``calibrate``
-re-measures each level's share on training episodes ((R − R_uniform) / (R_π − R_uniform), π by its
-mean action) and reports it beside the scripted expert's normalized return. Held-out returns are still
-normalized by the scripted expert (``references``), as in the scripted recipe, so the two recipes'
-tables are on one scale; π's own return is reported beside them.
-
-Only data generation and evaluation hold this oracle (privileged: it reads the goal-visible observation
-``ReachOracleState.obs``); no learner sees its inputs or outputs except as labels and behavior actions.
+oracle (``sac_weights.py``) instead of the scripted TCP expert. A behavior policy's *level* (the generic
+recipes' mixing level p) names an exported checkpoint at that share of π's return, acting by *sampling*
+(level 0: uniform actions, 1: π); the optimal action is π's mean action tanh(μ(s)); the utility of an action
+is Q̂(s, a), the minimum of the final twin critic, so a label reads A*(s, a) − A*(s, a') = Q̂(s, a) − Q̂(s, a')
+(the baseline E_{a'~π} Q̂(s, a') of the paper's A* cancels). Held-out returns are normalized by the scripted
+expert, so the two recipes' tables are on one scale. Privileged: it reads the goal-visible observation.
 """
 
 from __future__ import annotations

@@ -1,26 +1,14 @@
 """The SAC oracle as plain weights: a small, versioned, checksummed directory that loads without pickle.
 
 A trained SAC oracle (``sac.py``) is a directory of Stable-Baselines3 zips, which ``SAC.load`` reads by
-unpickling (the zip's ``data`` member holds cloudpickled objects); they are large (optimizer states, target
-critics) and not something to load from an untrusted place. ``export_sac_oracle`` keeps only what data
-generation needs (appendix "Pretraining Data Generation"), and reads it without unpickling anything: from
-each zip only the ``policy.pth`` member, with ``torch.load(weights_only=True)`` (tensors only; a pickle
-naming any other object is refused before it is called), and from the run only its ``summary.json``. So
-exporting an untrusted run never runs code from it:
-
-* the actor of each behavior checkpoint, chosen by its return normalized between uniform actions (0) and
-  the final policy (1), e.g. the 20/40/50/80% policies, and of the final (converged) policy π;
-* the final twin critic, whose minimum Q̂ gives A*(s, a) ≈ Q̂(s, a) − E_{a'~π} Q̂(s, a') (its per-state
-  differences are the I-PRL labels' utility differences);
-
-as ``torch.save`` state dicts with SB3's own key names, an ``oracle.json`` (what each file is, the training
-run's summary, its command) and ``SHA256SUMS``. ``ExportedSAC`` verifies every checksum, loads the
-tensors with ``torch.load(weights_only=True)`` into ``SACActor`` / ``SACCritic`` (the same layers as SB3's
-``MlpPolicy``: 256-256 ReLU MLPs; log-std clamped to [−20, 2]; a tanh-squashed Gaussian), and computes
-actions and Q̂ in NumPy-in, NumPy-out batches. Q̂ is divided by the run's ``reward_scale`` (latent-return
-units). Tested against SB3's own networks on the same weights.
-
-Export (from a training run's directory; ``--targets`` are the behavior policies' normalized returns):
+unpickling: not something to load from an untrusted place. ``export_sac_oracle`` reads from each zip only the
+``policy.pth`` member, with ``torch.load(weights_only=True)``, and from the run only its ``summary.json``, so
+exporting an untrusted run never runs code from it. It keeps what data generation needs (appendix "Pretraining
+Data Generation"): the actor of each behavior checkpoint (chosen by its return normalized between uniform
+actions and the final policy) and of the final policy π, and the final twin critic, whose minimum Q̂ gives
+A*(s, a) ≈ Q̂(s, a) − E_{a'~π} Q̂(s, a'); plus ``oracle.json`` and ``SHA256SUMS``. ``ExportedSAC`` verifies every
+checksum and loads the tensors into ``SACActor`` / ``SACCritic`` (SB3's ``MlpPolicy`` layers; tested against
+SB3's own networks on the same weights); Q̂ is divided by the run's ``reward_scale`` (latent-return units).
 
     icprl oracle export runs/sac_oracle/A --out icprl_lightning/families/metaworld_reach/sac_oracle_v1
 """
@@ -110,28 +98,37 @@ def sb3_policy_tensors(path: str | Path) -> dict[str, torch.Tensor]:
     if len(raw) > MAX_POLICY_BYTES:
         raise ValueError(f"{path}: its {POLICY_MEMBER} inflates beyond {MAX_POLICY_BYTES:,} bytes; a Reach SAC "
                          "policy is a few MB, so this file is forged or not an oracle checkpoint")
-    check_torch_archive(raw, f"{path} (member {POLICY_MEMBER})")
+    return _tensors(raw, f"{path}: its {POLICY_MEMBER}")
+
+
+def _tensors(source: Path | bytes, where: str) -> dict[str, torch.Tensor]:
+    """A ``torch.save`` file (a path or its bytes), bounded (``check_torch_archive``) and read with
+    ``weights_only=True``: a state dict of tensors, else a ``ValueError`` naming ``where``."""
+    check_torch_archive(source, where)
     try:
-        state = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises many types; an UnpicklingError for a pickle naming a disallowed global
-        first = (str(e).strip().splitlines() or [""])[0][:200]
-        raise ValueError(f"{path}: its {POLICY_MEMBER} was refused: it holds more than tensors (pickled objects, "
-                         f"which could run code) or is damaged ({type(e).__name__}: {first})") from None
+        state = torch.load(io.BytesIO(source) if isinstance(source, bytes) else source, map_location="cpu",
+                           weights_only=True)
+    except Exception as e:  # an UnpicklingError for a pickle naming a disallowed global; others for a damaged file
+        named = re.search(r"GLOBAL (\S+)", str(e))
+        why = f"its pickle names {named.group(1)}" if named else f"{type(e).__name__}: {str(e)[:200]}"
+        raise ValueError(f"{where} was refused: it holds more than tensors (pickled objects, which could run "
+                         f"code) or is damaged ({' '.join(why.split())})") from None
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise ValueError(f"{path}: its {POLICY_MEMBER} is not a state dict of tensors")
+        raise ValueError(f"{where} is not a state dict of tensors")
     return state
 
 
-def _load_part(state: Mapping[str, torch.Tensor], prefix: str, module: nn.Module, path: Path) -> nn.Module:
-    """``module`` with the entries of ``state`` under ``prefix`` (``actor.``, ``critic.``), keys and shapes strict."""
+def _load_part(state: Mapping[str, torch.Tensor], prefix: str, module: nn.Module, where: str) -> nn.Module:
+    """``module`` with the entries of ``state`` under ``prefix`` (``actor.``, ``critic.``; all of them: ""), keys
+    and shapes strict; a ``ValueError`` naming ``where`` otherwise."""
     part = {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
     try:
         module.load_state_dict(part, strict=True)
     except RuntimeError as e:
         first = str(e).strip().splitlines()[0]
-        raise ValueError(f"{path}: its {prefix.rstrip('.')} does not fit SB3's 256-256 MlpPolicy for Reach "
+        raise ValueError(f"{where} does not fit {type(module).__name__}, SB3's 256-256 MlpPolicy for Reach "
                          f"({first})") from None
-    return module
+    return module.eval()
 
 
 def _run_summary(run_dir: Path) -> dict[str, Any]:
@@ -184,9 +181,9 @@ def export_sac_oracle(run_dir: str | Path, out: str | Path, targets: Sequence[fl
     actors = {}
     for name, c in levels.items():
         zip_path = _checkpoint_in(run_dir, c["path"])
-        actors[name] = _load_part(sb3_policy_tensors(zip_path), "actor.", SACActor(), zip_path)
+        actors[name] = _load_part(sb3_policy_tensors(zip_path), "actor.", SACActor(), f"{zip_path}: its actor")
     final = _checkpoint_in(run_dir, summary["final"]["path"])
-    critic = _load_part(sb3_policy_tensors(final), "critic.", SACCritic(), final)
+    critic = _load_part(sb3_policy_tensors(final), "critic.", SACCritic(), f"{final}: its critic")
     with staged_directory(out, marker=MANIFEST, schema_version=FORMAT_VERSION, what=WHAT,
                           overwrite=overwrite) as tmp:
         policies = {}
@@ -263,22 +260,7 @@ class ExportedSAC:
             raise ValueError(f"{self.path / MANIFEST} names weight file {file!r}, which is not a file of the oracle "
                              f"directory listed in {CHECKSUMS}; refusing to load it")
         path = self.path / file
-        check_torch_archive(path)
-        try:
-            state = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as e:  # an UnpicklingError for a pickle naming a global; others for a damaged file
-            named = re.search(r"GLOBAL (\S+)", str(e))
-            why = f"its pickle names {named.group(1)}" if named else f"{type(e).__name__}: {str(e)[:200]}"
-            raise ValueError(f"{path} was refused: it holds more than tensors (pickled objects, which could run "
-                             f"code) or is damaged ({' '.join(why.split())})") from None
-        if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-            raise ValueError(f"{path} is not a state dict of tensors")
-        try:
-            module.load_state_dict(state, strict=True)
-        except RuntimeError as e:
-            first = str(e).strip().splitlines()[0]
-            raise ValueError(f"{path} does not fit {type(module).__name__} ({first})") from None
-        return module.eval()
+        return _load_part(_tensors(path, str(path)), "", module, str(path))
 
     @property
     def levels(self) -> tuple[float, ...]:
