@@ -112,7 +112,7 @@ def main(argv: list[str] | None = None) -> dict:
     if bandit and args.baseline:
         fail(args.parser, "--baseline applies to MDP families, not dueling bandits")
     for name, dm in datamodules.items():
-        dm.prepare_data()
+        getattr(dm, "prepare_heldout", dm.prepare_data)()  # only the held-out data, when it can
         if not bandit and not dm.evaluation_suites():
             fail(args.parser, f"--run {name}: the data of {args.runs[name][0]} has no held-out rollouts to "
                               "evaluate on (recorded data has no simulator); use a task family's config")
@@ -148,7 +148,7 @@ def run_registered(args: argparse.Namespace, datamodules: dict[str, Any], greedy
     except (ValueError, TypeError) as e:
         fail(args.parser, f"--evaluation {args.evaluation}: {e}")
     for dm in datamodules.values():
-        dm.prepare_data()
+        getattr(dm, "prepare_heldout", dm.prepare_data)()
     runs = [Run(name, datamodules[name], tuple(checkpoints), greedy)
             for name, (_, checkpoints) in args.runs.items()]
     payload = {KIND: kind.name, "title": args.title, "seeds": args.seeds, "options": options,

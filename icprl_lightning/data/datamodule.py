@@ -49,6 +49,11 @@ This module owns what every dataset shares:
   beside the checkpoint's checksummed part (``checkpoints.py``); resuming a fit with other fold settings
   is refused (validating or testing with others is not).
 * The evaluation suites of the held-out tasks, built by the setting from the stored evaluation splits.
+  ``prepare_heldout`` (``icprl evaluate``) makes only those splits when the whole dataset is missing and the
+  generator's state after the training splits is recorded for it (``heldout_streams.json``: the state
+  ``MDPSetting.generate`` leaves in ``heldout_stream``, and the whole generation's checksums of the files made
+  after it): they are drawn from that state into ``<path>.heldout``, marked ``heldout_only`` in its manifest
+  so a fit never takes it for the whole dataset, and their bytes are checked against the recorded checksums.
 
 What it serves is the data contract (``data_contract.PreferenceData``), and which of it applies is read from
 the setting's class-level declarations (``data/settings/base.py``: ``family_type``, ``per_task_keys``,
@@ -57,8 +62,10 @@ the setting's class-level declarations (``data/settings/base.py``: ``family_type
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Iterator, Sized
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -76,6 +83,8 @@ from icprl_lightning.data.suites import BanditSuite, EvalSuite
 from icprl_lightning.families.base import Family
 from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError, check_int
+
+HELDOUT_STREAMS = Path(__file__).with_name("heldout_streams.json")
 
 
 class EpochBatchSampler(BatchSampler):
@@ -192,6 +201,7 @@ class PreferenceDataModule(StoredData):
         self.folds = folds
         self.holdout_fold = holdout_fold
         self.dataset: StoredDataset | None = None
+        self.heldout: dict[str, Any] | None = None  # the recorded stream, while only held-out splits are made
 
     # ---- the data contract (data_contract.PreferenceData): what the CLI, methods and callbacks read ------
     @property
@@ -239,7 +249,25 @@ class PreferenceDataModule(StoredData):
         return f"{type(self.setting).__name__} data"
 
     def generate(self) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
-        return self.setting.generate(self.family, self.progress)
+        if self.heldout is None:
+            return self.setting.generate(self.family, self.progress)
+        splits, info = self.setting.generate(self.family, self.progress, heldout_stream=self.heldout["stream"])
+        return splits, {**info, "heldout_only": True}
+
+    def prepare_heldout(self) -> None:
+        """What evaluation reads: the whole dataset if it exists or nothing is recorded for it, else only the
+        held-out splits (see the module docstring), checked against the whole generation's checksums."""
+        recorded = json.loads(HELDOUT_STREAMS.read_text()).get(self.path.name)
+        if recorded is None or self.data_dir is not None or self.overwrite or self.path.exists():
+            return self.prepare_data()
+        self.data_dir, self.heldout = str(self.path.with_name(f"{self.path.name}.heldout")), recorded
+        self.prepare_data()
+        found = {name: meta["sha256"] for name, meta in self.load().manifest["files"].items()}
+        changed = sorted(k for k in set(found) | set(recorded["files"]) if found.get(k) != recorded["files"].get(k))
+        if changed:
+            raise ValueError(f"the held-out splits in {self.path} differ from the whole generation's recorded in "
+                             f"{HELDOUT_STREAMS} ({', '.join(changed[:3])}): the generators changed; delete "
+                             f"{self.path} and run `icprl generate --config <your config>`")
 
     @property
     def regenerate_hint(self) -> str:
@@ -248,6 +276,8 @@ class PreferenceDataModule(StoredData):
 
     def required_fields(self) -> dict[str, list[str]]:
         """The fields the batches read from each split: the setting's, ``pair_fields``, query labels."""
+        if self.heldout is not None:
+            return {}
         fields = list(self.setting.batch_fields())
         fields += [f for f in self.setting.pair_fields if self.pairs and f not in fields]
         fields += [f for f in LABEL_FIELDS if self.query_labels and f not in fields]
