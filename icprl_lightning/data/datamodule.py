@@ -53,7 +53,8 @@ This module owns what every dataset shares:
   generator's state after the training splits is recorded for it (``heldout_streams.json``: the state
   ``MDPSetting.generate`` leaves in ``heldout_stream``, and the whole generation's checksums of the files made
   after it): they are drawn from that state into ``<path>.heldout``, marked ``heldout_only`` in its manifest
-  so a fit never takes it for the whole dataset, and their bytes are checked against the recorded checksums.
+  so a fit never takes it for the whole dataset. Their bytes are checked against the recorded checksums; if
+  any differs, that directory is removed and the whole dataset generated.
 
 What it serves is the data contract (``data_contract.PreferenceData``), and which of it applies is read from
 the setting's class-level declarations (``data/settings/base.py``: ``family_type``, ``per_task_keys``,
@@ -64,6 +65,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from collections.abc import Iterator, Sized
 from pathlib import Path
 from typing import Any
@@ -264,10 +266,12 @@ class PreferenceDataModule(StoredData):
         self.prepare_data()
         found = {name: meta["sha256"] for name, meta in self.load().manifest["files"].items()}
         changed = sorted(k for k in set(found) | set(recorded["files"]) if found.get(k) != recorded["files"].get(k))
-        if changed:
-            raise ValueError(f"the held-out splits in {self.path} differ from the whole generation's recorded in "
-                             f"{HELDOUT_STREAMS} ({', '.join(changed[:3])}): the generators changed; delete "
-                             f"{self.path} and run `icprl generate --config <your config>`")
+        if changed:  # other generators or other numerics (MuJoCo, BLAS): only the whole generation is sure
+            print(f"note: the held-out splits in {self.path} differ from the whole generation's recorded in "
+                  f"{HELDOUT_STREAMS.name} ({', '.join(changed[:3])}); generating the whole dataset", flush=True)
+            shutil.rmtree(self.path)
+            self.data_dir, self.heldout, self.dataset = None, None, None
+            self.prepare_data()
 
     @property
     def regenerate_hint(self) -> str:
