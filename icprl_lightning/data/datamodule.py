@@ -49,12 +49,9 @@ This module owns what every dataset shares:
   beside the checkpoint's checksummed part (``checkpoints.py``); resuming a fit with other fold settings
   is refused (validating or testing with others is not).
 * The evaluation suites of the held-out tasks, built by the setting from the stored evaluation splits.
-  ``prepare_heldout`` (``icprl evaluate``) makes only those splits when the whole dataset is missing and the
-  generator's state after the training splits is recorded for it (``heldout_streams.json``: the state
-  ``MDPSetting.generate`` leaves in ``heldout_stream``, and the whole generation's checksums of the files made
-  after it): they are drawn from that state into ``<path>.heldout``, marked ``heldout_only`` in its manifest
-  so a fit never takes it for the whole dataset. Their bytes are checked against the recorded checksums; if
-  any differs, that directory is removed and the whole dataset generated.
+  ``prepare_heldout`` (``icprl evaluate``), if the whole dataset is missing, draws only those splits from the
+  generator state recorded after the training splits (``heldout_streams.json``) into ``<path>.heldout``
+  (``heldout_only`` in its manifest): kept if every byte matches the whole generation's recorded checksums.
 
 What it serves is the data contract (``data_contract.PreferenceData``), and which of it applies is read from
 the setting's class-level declarations (``data/settings/base.py``: ``family_type``, ``per_task_keys``,
@@ -77,9 +74,7 @@ from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.data.batches import LABEL_FIELDS, ContextBatches
 from icprl_lightning.data.schema import DatasetSchema, check_dataset
 from icprl_lightning.data.settings.base import Setting
-from icprl_lightning.data.store import (
-    StoredDataset,
-)
+from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.data.stored import StoredData
 from icprl_lightning.data.suites import BanditSuite, EvalSuite
 from icprl_lightning.families.base import Family

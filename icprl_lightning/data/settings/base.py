@@ -296,9 +296,8 @@ class MDPSetting(Setting):
 
     def generate(self, family: TaskFamily, progress: bool = True, heldout_stream: dict[str, Any] | None = None
                  ) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
-        """Every split; with ``heldout_stream`` (the generator's state after the val split, as a full generation
-        records it in ``self.heldout_stream``) the held-out splits only, drawn from that state: their bytes are
-        the full generation's, without simulating the training tasks."""
+        """Every split (keeping the generator's state after the val split in ``self.heldout_stream``); given such a
+        state, only the held-out splits, drawn from it: the whole generation's bytes, no training task simulated."""
         rng = np.random.default_rng(family.seed)
         targets = {**self.quality_targets, **self.extra_targets()}
         calibration = family.calibrate(targets, self.calibration_episodes, seed=int(rng.integers(2**31)))
