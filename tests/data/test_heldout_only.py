@@ -65,3 +65,13 @@ def test_a_stale_record_falls_back_to_the_whole_dataset(tmp_path, monkeypatch, c
     assert re.search(r"\.heldout differ from the whole generation's .*eval_high/actions\.npy", capsys.readouterr().out)
     assert dm.path == whole and _files(dm) == REFERENCE[DARKROOM]
     assert sorted(p.name for p in whole.parent.iterdir() if not p.name.startswith(".")) == [whole.name]
+
+
+@pytest.mark.slow
+def test_metaworld_icpo_held_out_data_is_made_alone(tmp_path):
+    """The record of metaworld-icpo's data holds on this machine: its held-out splits are made without the
+    training splits and kept (a byte that differs would fall back to the whole dataset)."""
+    dm = datamodule_from_config(REPO / "configs/icpo_metaworld.yaml", root_dir=str(tmp_path), progress=False)
+    dm.prepare_heldout()
+    assert dm.path.name.endswith(".heldout") and sorted(dm.load().splits) == ["eval_high", "eval_low", "eval_medium",
+                                                                                "tasks"]
