@@ -147,8 +147,8 @@ def run_registered(args: argparse.Namespace, datamodules: dict[str, Any], greedy
         evaluation = kind(**options)
     except (ValueError, TypeError) as e:
         fail(args.parser, f"--evaluation {args.evaluation}: {e}")
-    for dm in datamodules.values():
-        getattr(dm, "prepare_heldout", dm.prepare_data)()
+    for dm in datamodules.values():  # a registered evaluation may read any split: the whole dataset
+        dm.prepare_data()
     runs = [Run(name, datamodules[name], tuple(checkpoints), greedy)
             for name, (_, checkpoints) in args.runs.items()]
     payload = {KIND: kind.name, "title": args.title, "seeds": args.seeds, "options": options,
