@@ -5,8 +5,9 @@
 Prints JSON: per command the median wall-clock seconds of ``--repeats`` runs and its ratio to the Lightning
 import's median, all timed in one interleaved loop on this machine (a busy machine slows every one alike).
 ``icprl fit --help`` and a one-line config error (a mistyped key) must parse a LightningCLI, so their floor is
-that import; ``icprl --help``, ``icprl report --help`` and a missing config never import Lightning.
-Run from the repository's root (the config error reads configs/smoke.yaml).
+that import; ``icprl --help``, the subcommands that neither train nor deploy (``report``, ``import``,
+``export-data``, ``label``, ``checkpoint verify``) and a missing config never import Lightning.
+Run from the repository's root (the config error reads configs/smoke.yaml, verify a test fixture).
 """
 
 from __future__ import annotations
@@ -24,7 +25,10 @@ FLOOR = "import lightning.pytorch"
 COMMANDS = {
     FLOOR: [sys.executable, "-c", "import lightning.pytorch"],
     "icprl --help": [sys.executable, "-m", "icprl_lightning", "--help"],
-    "icprl report --help": [sys.executable, "-m", "icprl_lightning", "report", "--help"],
+    **{f"icprl {name} --help": [sys.executable, "-m", "icprl_lightning", name, "--help"]
+       for name in ("report", "import", "export-data", "label")},
+    "icprl checkpoint verify <ckpt>": [sys.executable, "-m", "icprl_lightning", "checkpoint", "verify",
+                                       "tests/fixtures/legacy/icpo_1x8.ckpt"],
     "icprl fit --config <missing>": [sys.executable, "-m", "icprl_lightning", "fit", "--config",
                                      "configs/smok.yaml"],
     "icprl fit --help": [sys.executable, "-m", "icprl_lightning", "fit", "--help"],

@@ -1,5 +1,6 @@
 """``icprl checkpoint verify|stamp PATH ...``: check checkpoints for damage, or stamp trusted old ones
-(``checkpoints.py``).
+(``checkpoints.py``). ``verify`` checks class name, checksum, seal and finite values without importing Lightning;
+``--rebuild`` also builds the module as ``load_agent`` does (a file this version no longer fits), importing it.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ def main(args: list[str] | None = None) -> None:
     check.add_argument("paths", nargs="+")
     check.add_argument("--resumable", action="store_true",
                        help="also require the seal over the training state that a resume restores")
+    check.add_argument("--rebuild", action="store_true",
+                       help="also build the module with this version of the package (imports Lightning: seconds)")
     parsed = parser.parse_args(args)
     failed = False
     for path in parsed.paths:
@@ -27,7 +30,9 @@ def main(args: list[str] | None = None) -> None:
             if parsed.command == "stamp":
                 print(f"{path}: {CHECKSUM_KEY} {stamp_file(path)}")
             else:
-                build_module(verify(load_raw(path), path, require_seal=parsed.resumable), path)
+                ckpt = verify(load_raw(path), path, require_seal=parsed.resumable)
+                if parsed.rebuild:
+                    build_module(ckpt, path)
                 print(f"{path}: ok")
         except (ValueError, FileNotFoundError) as e:
             print(f"error: {e}", file=sys.stderr)

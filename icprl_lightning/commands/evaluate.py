@@ -216,8 +216,8 @@ def run_evaluation(args: argparse.Namespace, datamodules: dict[str, Any], greedy
         evaluation = kind(**options)
     except (ValueError, TypeError) as e:
         fail(args.parser, f"--evaluation {args.evaluation}: {e}" if explicit else str(e))
-    for dm in datamodules.values():
-        dm.prepare_data()
+    for dm in datamodules.values():  # only the held-out splits where the kind reads nothing else and they can be
+        (getattr(dm, "prepare_heldout", dm.prepare_data) if kind.held_out_only else dm.prepare_data)()
     runs = [Run(name, datamodules[name], tuple(checkpoints), greedy, config)
             for name, (config, checkpoints) in args.runs.items()]
     actions = "sampled" if args.sample else "greedy" if args.greedy else "each method's default"

@@ -1,7 +1,7 @@
 """Datasets: settings (recipes), the store, batches, and the DataModules of generated and recorded data.
 
 ``PreferenceDataModule`` (a Lightning DataModule) is imported on first use (PEP 562), so the commands that only
-read or write stored data (``icprl import``, ``export-data``, ``analyze checksums``) never import Lightning.
+read or write stored data (``icprl import``, ``export-data``) never import Lightning.
 """
 
 from __future__ import annotations

@@ -49,6 +49,9 @@ This module owns what every dataset shares:
   beside the checkpoint's checksummed part (``checkpoints.py``); resuming a fit with other fold settings
   is refused (validating or testing with others is not).
 * The evaluation suites of the held-out tasks, built by the setting from the stored evaluation splits.
+  ``prepare_heldout`` (``icprl evaluate``), if the whole dataset is missing, draws only those splits from the
+  generator state recorded after the training splits (``heldout_streams.json``) into ``<path>.heldout``
+  (``heldout_only`` in its manifest): kept if every byte matches the whole generation's recorded checksums.
 
 What it serves is the data contract (``data_contract.PreferenceData``), and which of it applies is read from
 the setting's class-level declarations (``data/settings/base.py``: ``family_type``, ``per_task_keys``,
@@ -57,8 +60,11 @@ the setting's class-level declarations (``data/settings/base.py``: ``family_type
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 from collections.abc import Iterator, Sized
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -68,14 +74,14 @@ from icprl_lightning.contexts import ActionSpec
 from icprl_lightning.data.batches import LABEL_FIELDS, ContextBatches
 from icprl_lightning.data.schema import DatasetSchema, check_dataset
 from icprl_lightning.data.settings.base import Setting
-from icprl_lightning.data.store import (
-    StoredDataset,
-)
+from icprl_lightning.data.store import StoredDataset
 from icprl_lightning.data.stored import StoredData
 from icprl_lightning.data.suites import BanditSuite, EvalSuite
 from icprl_lightning.families.base import Family
 from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError, check_int
+
+HELDOUT_STREAMS = Path(__file__).with_name("heldout_streams.json")
 
 
 class EpochBatchSampler(BatchSampler):
@@ -192,6 +198,7 @@ class PreferenceDataModule(StoredData):
         self.folds = folds
         self.holdout_fold = holdout_fold
         self.dataset: StoredDataset | None = None
+        self.heldout: dict[str, Any] | None = None  # the recorded stream, while only held-out splits are made
 
     # ---- the data contract (data_contract.PreferenceData): what the CLI, methods and callbacks read ------
     @property
@@ -239,7 +246,27 @@ class PreferenceDataModule(StoredData):
         return f"{type(self.setting).__name__} data"
 
     def generate(self) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
-        return self.setting.generate(self.family, self.progress)
+        if self.heldout is None:
+            return self.setting.generate(self.family, self.progress)
+        splits, info = self.setting.generate(self.family, self.progress, heldout_stream=self.heldout["stream"])
+        return splits, {**info, "heldout_only": True}
+
+    def prepare_heldout(self) -> None:
+        """What evaluation reads: the whole dataset if it exists or nothing is recorded for it, else only the
+        held-out splits (see the module docstring), checked against the whole generation's checksums."""
+        recorded = json.loads(HELDOUT_STREAMS.read_text()).get(self.path.name)
+        if recorded is None or self.data_dir is not None or self.overwrite or self.path.exists():
+            return self.prepare_data()
+        self.data_dir, self.heldout = str(self.path.with_name(f"{self.path.name}.heldout")), recorded
+        self.prepare_data()
+        found = {name: meta["sha256"] for name, meta in self.load().manifest["files"].items()}
+        changed = sorted(k for k in set(found) | set(recorded["files"]) if found.get(k) != recorded["files"].get(k))
+        if changed:  # other generators or other numerics (MuJoCo, BLAS): only the whole generation is sure
+            print(f"note: the held-out splits in {self.path} differ from the whole generation's recorded in "
+                  f"{HELDOUT_STREAMS.name} ({', '.join(changed[:3])}); generating the whole dataset", flush=True)
+            shutil.rmtree(self.path)
+            self.data_dir, self.heldout, self.dataset = None, None, None
+            self.prepare_data()
 
     @property
     def regenerate_hint(self) -> str:
@@ -248,6 +275,8 @@ class PreferenceDataModule(StoredData):
 
     def required_fields(self) -> dict[str, list[str]]:
         """The fields the batches read from each split: the setting's, ``pair_fields``, query labels."""
+        if self.heldout is not None:
+            return {}
         fields = list(self.setting.batch_fields())
         fields += [f for f in self.setting.pair_fields if self.pairs and f not in fields]
         fields += [f for f in LABEL_FIELDS if self.query_labels and f not in fields]

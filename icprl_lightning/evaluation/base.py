@@ -53,6 +53,7 @@ class HeldOutEvaluation(ABC):
     command line (an experiment file's ``options``), passed to the constructor as keywords."""
 
     name: ClassVar[str]
+    held_out_only: ClassVar[bool] = False  # reads only ``data.held_out(...)``: the training splits may be skipped
 
     @classmethod
     def recognizes(cls, payload: dict[str, Any]) -> bool:

@@ -63,6 +63,7 @@ class HeldOutRollouts(HeldOutEvaluation):
     behavior and optimal/expert rows (default: the first)."""
 
     name: ClassVar[str] = "rollouts"
+    held_out_only: ClassVar[bool] = True
 
     def __init__(self, contexts: list[str] = ("own",), baselines: dict[str, str] | None = None,
                  reference: str | None = None) -> None:

@@ -63,6 +63,7 @@ class WeakRegret(HeldOutEvaluation):
     baseline rows (default: the first)."""
 
     name: ClassVar[str] = "duels"
+    held_out_only: ClassVar[bool] = True
 
     def __init__(self, contexts: list[str] = ("own",), baselines: bool = True, reference: str | None = None) -> None:
         self.contexts, self.baselines, self.reference = checked_contexts(contexts), baselines, reference

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
+LEGACY_ICPO = REPO / "tests/fixtures/legacy/icpo_1x8.ckpt"  # a real checkpoint: verify reads its every part
 
 
 def imported_modules(argv: list[str], cwd: Path) -> set[str]:
@@ -50,6 +51,8 @@ def workdir(tmp_path_factory) -> Path:
     ["import", "prefs.npz", "--out", "data/mine", "--kind", "step_preference", "--n-actions", "5"],
     ["export-data", "data/mine", "--format", "parquet", "--out", "exported"],
     ["checkpoint", "--help"],
+    ["checkpoint", "verify", "--resumable", str(LEGACY_ICPO)],
+    ["label", "--session", "labels", "--view", "darkroom_trajectories", "--pairs", "3", "--export", "answers"],
 ], ids=lambda argv: " ".join(argv[:2]))
 def test_a_subcommand_that_neither_trains_nor_deploys_imports_no_lightning(argv, workdir):
     modules = imported_modules(argv, workdir)
@@ -57,5 +60,7 @@ def test_a_subcommand_that_neither_trains_nor_deploys_imports_no_lightning(argv,
 
 
 def test_the_check_sees_lightning_where_it_is_imported(workdir):
-    """The same check on a command that does import Lightning (the fit's parser) reports it."""
+    """The same check on commands that do import Lightning (the fit's parser; a checkpoint's module rebuilt)
+    reports it."""
     assert "lightning.pytorch" in imported_modules(["fit", "--help"], workdir)
+    assert "lightning.pytorch" in imported_modules(["checkpoint", "verify", "--rebuild", str(LEGACY_ICPO)], workdir)

@@ -326,6 +326,18 @@ def test_cli_validates_a_good_checkpoint_end_to_end(tmp_path, monkeypatch):
     main(["validate", *args, "--ckpt_path", ckpt, "--trainer.limit_val_batches", "1"])  # no SystemExit
 
 
+@pytest.mark.parametrize("kind", ["unfit_hparams", "relabeled_class"])
+def test_verify_rebuild_refuses_an_intact_file_this_version_cannot_build(bad, kind, capsys):
+    """Plain ``verify`` checks the file's integrity (intact here: re-checksummed after the edit) without Lightning;
+    ``--rebuild`` builds the module as ``load_agent`` does, and names what does not fit."""
+    path, _, match = bad[kind]
+    checkpoints_main(["verify", str(path)])
+    assert f"{path}: ok" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        checkpoints_main(["verify", "--rebuild", str(path)])
+    assert re.search(match, capsys.readouterr().err)
+
+
 def test_stamp_adds_the_checksum_to_a_trusted_old_file(bad, tmp_path, capsys):
     old = tmp_path / "old.ckpt"
     old.write_bytes(bad["no_checksum"][0].read_bytes())

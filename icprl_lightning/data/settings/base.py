@@ -294,8 +294,10 @@ class MDPSetting(Setting):
         arrays.update(task_index=task_index, quality=qual)
         return arrays, stats
 
-    def generate(self, family: TaskFamily, progress: bool = True) -> tuple[dict[str, dict[str, np.ndarray]],
-                                                                             dict[str, Any]]:
+    def generate(self, family: TaskFamily, progress: bool = True, heldout_stream: dict[str, Any] | None = None
+                 ) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, Any]]:
+        """Every split (keeping the generator's state after the val split in ``self.heldout_stream``); given such a
+        state, only the held-out splits, drawn from it: the whole generation's bytes, no training task simulated."""
         rng = np.random.default_rng(family.seed)
         targets = {**self.quality_targets, **self.extra_targets()}
         calibration = family.calibrate(targets, self.calibration_episodes, seed=int(rng.integers(2**31)))
@@ -303,11 +305,16 @@ class MDPSetting(Setting):
         train, test = family.tasks("train"), family.tasks("test")
         splits: dict[str, dict[str, np.ndarray]] = {
             "tasks": {f"train_{family.task_name}": train, f"test_{family.task_name}": test}}
-        n_train, n_val = self.per_task
-        splits["train"], train_stats = self._split(family, train, n_train, mixing, rng, "train contexts", progress)
-        splits["val"], _ = self._split(family, train, n_val, mixing, rng, "val contexts", progress)
+        info: dict[str, Any] = {"test_reference": {}, "calibration": calibration}
+        if heldout_stream is None:
+            n_train, n_val = self.per_task
+            splits["train"], info["train_statistics"] = self._split(family, train, n_train, mixing, rng,
+                                                                    "train contexts", progress)
+            splits["val"], _ = self._split(family, train, n_val, mixing, rng, "val contexts", progress)
+            self.heldout_stream = rng.bit_generator.state
+        else:
+            rng.bit_generator.state = heldout_stream
         eval_stats: dict[str, dict[str, float]] = {}
-        info: dict[str, Any] = {"test_reference": {}}
         groups = family.reference_groups(QUALITIES)
         for qi, q in enumerate(QUALITIES):
             splits[f"eval_{q}"], eval_stats[q] = self._split(family, test, self.eval_contexts_per_task, mixing,
@@ -317,8 +324,7 @@ class MDPSetting(Setting):
                                                 self.reference_episodes, rng)
                 info["test_reference"].update(refs.pop("test_reference"))
                 info.update(refs)
-        info.update(calibration=calibration, train_statistics=train_stats, eval_statistics=eval_stats,
-                    **self.annotation())
+        info.update(eval_statistics=eval_stats, **self.annotation())
         return splits, info
 
     def evaluation_suites(self, family: TaskFamily, data: StoredDataset) -> list[EvalSuite]:
