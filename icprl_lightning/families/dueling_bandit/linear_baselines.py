@@ -11,15 +11,26 @@ on training problems only (``tuning.py``).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from icprl_lightning.families.dueling_bandit.bt_posterior import BradleyTerryPosterior, check_duels, win_counts
 from icprl_lightning.validation import check_int
 
-if TYPE_CHECKING:
-    from icprl_lightning.families.dueling_bandit.dts import DoubleThompsonSampling
+
+class Dueler(Protocol):
+    """What ``run_online`` and ``prefix_duels`` play: a ``LinearDuelingLearner`` or DTS (``dts.py``)."""
+
+    n_problems: int
+    n_arms: int
+
+    def select(self) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def update(self, first: np.ndarray, second: np.ndarray, preferred: np.ndarray) -> None: ...
+
+    def recommend(self) -> np.ndarray: ...
+
 
 Duels = tuple[np.ndarray, np.ndarray]
 
@@ -90,7 +101,7 @@ class LinearDuelingLearner(ABC):
         """The next duel of every problem: ``(first [P], second [P])`` int64 arm indices."""
 
 
-def run_online(learner: LinearDuelingLearner | DoubleThompsonSampling, preference_matrix: np.ndarray, horizon: int,
+def run_online(learner: Dueler, preference_matrix: np.ndarray, horizon: int,
                rng: np.random.Generator, recommend: bool = False) -> dict[str, np.ndarray]:
     """Play ``horizon`` rounds; labels y ~ Bernoulli(``preference_matrix[p, first, second]``) from ``rng``, drawn
     after each ``select`` (for DTS, ``dts.run_dts``, the same generator as its own draws).
@@ -120,7 +131,7 @@ def run_online(learner: LinearDuelingLearner | DoubleThompsonSampling, preferenc
     return out
 
 
-def prefix_duels(learner: LinearDuelingLearner | DoubleThompsonSampling, arms_first: np.ndarray,
+def prefix_duels(learner: Dueler, arms_first: np.ndarray,
                  arms_second: np.ndarray, preferred: np.ndarray) -> Duels:
     """The learner's duel after each prefix D_{1:h}, h = 1..H, of a fixed context (each ``[P, H]``).
 
