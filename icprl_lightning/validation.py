@@ -136,12 +136,6 @@ def check_range(owner: str, key: str, value: Any) -> tuple[float, float] | None:
     return low, high
 
 
-def check_optimizer(owner: str, lr: Any, weight_decay: Any) -> None:
-    """The optimizer arguments of every method (the backbone's sizes check themselves: ``models/config.py``)."""
-    check_positive(owner, "lr", lr)
-    check_nonnegative(owner, "weight_decay", weight_decay)
-
-
 def check_sizes(owner: str, state_dim: Any, action_dim: Any) -> None:
     check_int(owner, "state_dim", state_dim, 0)
     check_int(owner, "action_dim", action_dim, 1)

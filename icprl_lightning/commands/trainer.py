@@ -24,7 +24,7 @@ import lightning as L
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 
 from icprl_lightning.callbacks.atomic_io import use_atomic_saves
-from icprl_lightning.callbacks.defaults import default_callbacks
+from icprl_lightning.callbacks.defaults import NAMED_CALLBACKS, default_callbacks, named_callbacks
 from icprl_lightning.callbacks.run_directory import run_directory, unique_logger_versions
 from icprl_lightning.callbacks.run_logs import wandb_in_run_directory
 from icprl_lightning.progress import is_terminal
@@ -68,19 +68,26 @@ def _class_arguments(class_path: str) -> list[str]:
     return names
 
 
-def _group_keys(class_path: str, group: str) -> list[str]:
-    """The keys of a class's dataclass-typed ``__init__`` argument ``group`` (e.g. a method's ``backbone``)."""
+def _groups(class_path: str) -> dict[str, list[str]]:
+    """A class's dataclass-typed ``__init__`` arguments (a method's ``backbone``, ``optimizer``) and their keys."""
     module, _, name = class_path.rpartition(".")
     cls = getattr(sys.modules.get(module), name, None)
+    groups: dict[str, list[str]] = {}
     for klass in cls.__mro__ if isinstance(cls, type) else ():
         if "__init__" in vars(klass):
             try:
-                hint = typing.get_type_hints(klass.__init__).get(group)
+                hints = typing.get_type_hints(klass.__init__)
             except Exception:  # an annotation that does not resolve outside type checking
                 continue
-            if dataclasses.is_dataclass(hint):
-                return [f.name for f in dataclasses.fields(hint)]
-    return []
+            groups.update({k: [f.name for f in dataclasses.fields(h)] for k, h in hints.items()
+                           if dataclasses.is_dataclass(h) and k not in groups})
+    return groups
+
+
+def _moved(option: str, class_path: str) -> str:
+    """" (it is 'optimizer.lr' now)" for a key that moved into a group (``--model.init_args.lr``), else ""."""
+    group = next((g for g, keys in _groups(class_path).items() if option in keys), None)
+    return f" (it is {group + '.' + option!r} now)" if group else ""
 
 
 def _option_names(parser: Any) -> list[str]:
@@ -104,7 +111,8 @@ def summarize_parse_error(message: str, parser: Any) -> str:
             key = ".init_args.".join([*keys, m.group(1)]) if keys else m.group(1)
             owner = classes[-1].rpartition(".")[2] if classes else "this class"
             return (f"{key}: {owner} has no argument {m.group(1)!r}"
-                    f"{_close(m.group(1), _class_arguments(classes[-1]) if classes else [])}")
+                    + ((_moved(m.group(1), classes[-1]) or _close(m.group(1), _class_arguments(classes[-1])))
+                       if classes else ""))
         if m := re.search(r"module '([^']+)' has no attribute '([^']+)'", line):
             module = sys.modules.get(m.group(1))
             names = [n for n in dir(module) if isinstance(getattr(module, n, None), type)] if module else []
@@ -115,7 +123,7 @@ def summarize_parse_error(message: str, parser: Any) -> str:
         if nested:  # a key inside a dataclass argument, e.g. model.init_args.backbone.n_layers
             group, option = nested.groups()
             key = ".init_args.".join([*keys, group]) + f".{option}"
-            return f"{key}: {group} has no key {option!r}{_close(option, _group_keys(classes[-1], group))}"
+            return f"{key}: {group} has no key {option!r}{_close(option, _groups(classes[-1]).get(group, []))}"
         if m := re.match(r"[Uu]nrecognized arguments: (\S+)", line):
             option = m.group(1).split("=", 1)[0]
             return f"unknown option {option}{_close(option, _option_names(parser))}"
@@ -187,18 +195,24 @@ class ICPRLCLI(LightningCLI):
             raise CLIError(summarize_parse_error(str(e), sub)) from None
 
     def _instantiate_trainer(self, config: dict[str, Any], callbacks: list) -> L.Trainer:
-        """As LightningCLI's, but ``--trainer.enable_checkpointing false`` also drops the default callbacks that
-        save checkpoints (``LastCheckpoint``), which Lightning would otherwise refuse beside that flag."""
+        """As LightningCLI's, but the named callbacks (``callbacks/defaults.NAMED_CALLBACKS``; ``null`` drops one)
+        come before the config's own, and ``--trainer.enable_checkpointing false`` also drops the callbacks that
+        save checkpoints (the best one, ``LastCheckpoint``), which Lightning would otherwise refuse beside it."""
+        from lightning.pytorch.callbacks import Checkpoint
+
         precision = config.get("precision")
         if precision is not None and str(precision) not in PRECISIONS:  # before the Trainer imports or casts anything
             raise CLIError(f"trainer.precision {str(precision)!r} is refused: the batches are float32, so the weights "
                            f"stay float32 (autocast allowed); use one of {', '.join(PRECISIONS[::2])}")
-        if config.get("enable_checkpointing") is False:
-            from lightning.pytorch.callbacks import Checkpoint
-
+        saving = config.get("enable_checkpointing") is not False
+        if not saving:
             self.trainer_defaults = {**self.trainer_defaults, "callbacks": [
                 c for c in self.trainer_defaults.get("callbacks", []) if not isinstance(c, Checkpoint)]}
-        return super()._instantiate_trainer(config, callbacks)
+        own = config.get("callbacks")
+        own = [] if own is None else own if isinstance(own, list) else [own]
+        named = [c for c in named_callbacks(callbacks, own) if saving or not isinstance(c, Checkpoint)]
+        config["callbacks"] = [*named, *own]
+        return super()._instantiate_trainer(config, [])
 
     def _parse_ckpt_path(self) -> None:
         """Check the ``ckpt_path`` Lightning will load, on the parsed config (``checkpoints.checkpoint_for_
@@ -221,6 +235,9 @@ class ICPRLCLI(LightningCLI):
         super()._parse_ckpt_path()
 
     def add_arguments_to_parser(self, parser: LightningArgumentParser) -> None:
+        for key, (base, default, _) in NAMED_CALLBACKS.items():  # a config changes or drops them by key, not position
+            parser.add_lightning_class_args(base, key, subclass_mode=True, required=False)
+            parser.set_defaults({key: default})
         links = {"state_dim": lambda d: d.state_dim, "action_dim": lambda d: d.action_spec.size,
                  "discrete": lambda d: d.action_spec.discrete, "max_context": lambda d: d.context_length}
         for name, fn in links.items():

@@ -39,15 +39,15 @@ from torch import Tensor
 
 from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext
 from icprl_lightning.data_contract import PreferenceData
-from icprl_lightning.methods.base import fit_input_normalizers, save_backbone
+from icprl_lightning.methods.base import fit_input_normalizers, save_groups
 from icprl_lightning.methods.losses import trajectory_preference_loss
-from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.methods.schedule import configure_adamw
+from icprl_lightning.models.config import DEFAULT_OPTIMIZER, OptimizerConfig, TransformerConfig
 from icprl_lightning.models.estimator import InContextRewardModel
 from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import (
     check_choice,
     check_int,
-    check_optimizer,
     check_pairing,
     check_range,
     check_sizes,
@@ -64,17 +64,16 @@ class RewardGenModule(L.LightningModule):
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
                  pair_source: str = "other_pair", reward_range: list[float] | None = None,
-                 backbone: TransformerConfig = REWARD_GEN_BACKBONE, lr: float = 3e-4,
-                 weight_decay: float = 0.0, normalize_inputs: bool = False) -> None:
+                 backbone: TransformerConfig = REWARD_GEN_BACKBONE, optimizer: OptimizerConfig = DEFAULT_OPTIMIZER,
+                 normalize_inputs: bool = False) -> None:
         owner = "RewardGenModule"
         check_choice(owner, "pair_source", pair_source, PAIR_SOURCES)
         check_choice(owner, "normalize_inputs", normalize_inputs, (True, False))
         bounds = check_range(owner, "reward_range", reward_range)
         check_sizes(owner, state_dim, action_dim)
         check_int(owner, "max_context", max_context, 1)
-        check_optimizer(owner, lr, weight_decay)
         super().__init__()
-        self.backbone = save_backbone(self, backbone)
+        self.backbone, self.optimizer_config = save_groups(self, backbone, optimizer)
         causal = pair_source == "context_causal"
         self.hparams["causal"] = causal  # R_ψ's reading rule, saved for ICRG to copy (icrg.ARCHITECTURE)
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
@@ -150,8 +149,8 @@ class RewardGenModule(L.LightningModule):
             self.reward.reward_mean.fill_(mean)
             self.reward.reward_std.fill_(std)
 
-    def configure_optimizers(self) -> torch.optim.Optimizer:
-        return torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+    def configure_optimizers(self):
+        return configure_adamw(self, self.optimizer_config)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""
