@@ -44,7 +44,9 @@ def hyperparameter_cause(error: BaseException) -> HyperparameterError | None:
 
 
 def _fail(owner: str, key: str, rule: str, value: Any) -> None:
-    raise HyperparameterError(f"{owner}: {key} must be {rule}, got {value!r}")
+    """"ICPOModule: beta must be ..."; a group's key (owner "backbone.") reads "backbone.n_layer: must be ..."."""
+    where = f"{owner}{key}:" if owner.endswith(".") else f"{owner}: {key}"
+    raise HyperparameterError(f"{where} must be {rule}, got {value!r}")
 
 
 def _number(owner: str, key: str, value: Any, integer: bool) -> float:

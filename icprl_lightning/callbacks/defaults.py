@@ -24,13 +24,9 @@ from icprl_lightning.callbacks.run_directory import RunDirectory
 from icprl_lightning.callbacks.run_logs import CSVMetrics
 from icprl_lightning.callbacks.training_clock import TrainingClock
 
-# key -> (the class it must be, its default, whether a callback is of its kind). A config names only what differs,
-# by key, e.g. ``evaluation: {every_n_epochs: 2}``, ``evaluation: null`` or ``best_checkpoint: {filename: best}``.
-#   evaluation       the held-out evaluation during training: in-context rollouts every epoch;
-#   best_checkpoint  "best" = lowest val/loss (validation contexts of the training tasks), printed as
-#                    "best checkpoint (val/loss = ..., epoch E): PATH". Not the held-out return: the evaluation's
-#                    held-out contexts are those `icprl evaluate` reports on, so choosing by them would select on
-#                    the test set. last.ckpt (the final state) is LastCheckpoint's.
+# key -> (the class it must be, its default, whether a callback is of its kind); a config names what differs by key
+# (``evaluation: {every_n_epochs: 2}``, ``evaluation: null``). The evaluation: held-out rollouts. The best checkpoint:
+# lowest val/loss of the training tasks' validation contexts, never the held-out return `icprl evaluate` reports.
 NAMED_CALLBACKS: dict[str, tuple[type[Callback], dict[str, Any], Callable[[Callback], bool]]] = {
     "evaluation": (Callback, {"class_path": "icprl_lightning.callbacks.rollout.InContextRolloutCallback"},
                    lambda c: hasattr(c, "requires_data")),  # a held-out evaluation (data_contract.ReadsData)
@@ -38,14 +34,6 @@ NAMED_CALLBACKS: dict[str, tuple[type[Callback], dict[str, Any], Callable[[Callb
                                           "init_args": {"monitor": "val/loss"}},
                         lambda c: isinstance(c, ModelCheckpoint)),
 }
-
-
-def named_callbacks(named: list[Callback | None], own: list[Callback]) -> list[Callback]:
-    """The named callbacks a fit runs (``named`` in ``NAMED_CALLBACKS``' order): not those set to null, nor one of a
-    kind the config's own ``trainer.callbacks`` hold, so a config that lists its evaluation or ``ModelCheckpoint``
-    itself (as configs did before these defaults) runs with it once."""
-    return [c for c, (_, _, kind) in zip(named, NAMED_CALLBACKS.values(), strict=True)
-            if c is not None and not any(kind(o) for o in own)]
 
 
 def default_callbacks() -> list[Callback]:

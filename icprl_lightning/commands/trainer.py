@@ -24,7 +24,7 @@ import lightning as L
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 
 from icprl_lightning.callbacks.atomic_io import use_atomic_saves
-from icprl_lightning.callbacks.defaults import NAMED_CALLBACKS, default_callbacks, named_callbacks
+from icprl_lightning.callbacks.defaults import NAMED_CALLBACKS, default_callbacks
 from icprl_lightning.callbacks.run_directory import run_directory, unique_logger_versions
 from icprl_lightning.callbacks.run_logs import wandb_in_run_directory
 from icprl_lightning.progress import is_terminal
@@ -55,39 +55,25 @@ def _close(word: str, options: list[str]) -> str:
     return f" (did you mean {found[0]!r}?)" if found else ""
 
 
-def _class_arguments(class_path: str) -> list[str]:
-    """The ``__init__`` arguments of a class jsonargparse already imported (never imports anything itself)."""
+def _arguments(class_path: str) -> dict[str, list[str]]:
+    """The ``__init__`` arguments of a class jsonargparse already imported (never imports anything itself), over the
+    whole MRO (a subclass may forward **kwargs to its base): each with its keys if it is a group (a dataclass, e.g.
+    a method's ``backbone`` or ``optimizer``), else []."""
     module, _, name = class_path.rpartition(".")
     cls = getattr(sys.modules.get(module), name, None)
-    if not isinstance(cls, type):
-        return []
-    names = []  # the whole MRO: a subclass may forward **kwargs to its base
-    for klass in cls.__mro__:
-        if "__init__" in vars(klass):
-            names += [p for p in inspect.signature(klass.__init__).parameters if p not in ("self", "args", "kwargs")]
-    return names
-
-
-def _groups(class_path: str) -> dict[str, list[str]]:
-    """A class's dataclass-typed ``__init__`` arguments (a method's ``backbone``, ``optimizer``) and their keys."""
-    module, _, name = class_path.rpartition(".")
-    cls = getattr(sys.modules.get(module), name, None)
-    groups: dict[str, list[str]] = {}
+    arguments: dict[str, list[str]] = {}
     for klass in cls.__mro__ if isinstance(cls, type) else ():
         if "__init__" in vars(klass):
             try:
                 hints = typing.get_type_hints(klass.__init__)
             except Exception:  # an annotation that does not resolve outside type checking
-                continue
-            groups.update({k: [f.name for f in dataclasses.fields(h)] for k, h in hints.items()
-                           if dataclasses.is_dataclass(h) and k not in groups})
-    return groups
-
-
-def _moved(option: str, class_path: str) -> str:
-    """" (it is 'optimizer.lr' now)" for a key that moved into a group (``--model.init_args.lr``), else ""."""
-    group = next((g for g, keys in _groups(class_path).items() if option in keys), None)
-    return f" (it is {group + '.' + option!r} now)" if group else ""
+                hints = {}
+            for key in inspect.signature(klass.__init__).parameters:
+                group = hints.get(key)
+                if key not in ("self", "args", "kwargs", *arguments):
+                    arguments[key] = [f.name for f in dataclasses.fields(group)] if dataclasses.is_dataclass(
+                        group) else []
+    return arguments
 
 
 def _option_names(parser: Any) -> list[str]:
@@ -110,9 +96,10 @@ def summarize_parse_error(message: str, parser: Any) -> str:
         if m := re.search(r"Option '([^']+)' is not accepted", line):
             key = ".init_args.".join([*keys, m.group(1)]) if keys else m.group(1)
             owner = classes[-1].rpartition(".")[2] if classes else "this class"
+            known = _arguments(classes[-1]) if classes else {}  # a key moved into a group: --model.init_args.lr
+            moved = [f"{group}.{m.group(1)}" for group, keys in known.items() if m.group(1) in keys]
             return (f"{key}: {owner} has no argument {m.group(1)!r}"
-                    + ((_moved(m.group(1), classes[-1]) or _close(m.group(1), _class_arguments(classes[-1])))
-                       if classes else ""))
+                    + (f" (it is {moved[0]!r} now)" if moved else _close(m.group(1), list(known))))
         if m := re.search(r"module '([^']+)' has no attribute '([^']+)'", line):
             module = sys.modules.get(m.group(1))
             names = [n for n in dir(module) if isinstance(getattr(module, n, None), type)] if module else []
@@ -123,7 +110,7 @@ def summarize_parse_error(message: str, parser: Any) -> str:
         if nested:  # a key inside a dataclass argument, e.g. model.init_args.backbone.n_layers
             group, option = nested.groups()
             key = ".init_args.".join([*keys, group]) + f".{option}"
-            return f"{key}: {group} has no key {option!r}{_close(option, _groups(classes[-1]).get(group, []))}"
+            return f"{key}: {group} has no key {option!r}{_close(option, _arguments(classes[-1]).get(group, []))}"
         if m := re.match(r"[Uu]nrecognized arguments: (\S+)", line):
             option = m.group(1).split("=", 1)[0]
             return f"unknown option {option}{_close(option, _option_names(parser))}"
@@ -196,8 +183,9 @@ class ICPRLCLI(LightningCLI):
 
     def _instantiate_trainer(self, config: dict[str, Any], callbacks: list) -> L.Trainer:
         """As LightningCLI's, but the named callbacks (``callbacks/defaults.NAMED_CALLBACKS``; ``null`` drops one)
-        come before the config's own, and ``--trainer.enable_checkpointing false`` also drops the callbacks that
-        save checkpoints (the best one, ``LastCheckpoint``), which Lightning would otherwise refuse beside it."""
+        come before the config's own, unless those hold one of their kind (a config listing its evaluation or
+        ``ModelCheckpoint`` itself, as before these defaults, runs it once), and ``--trainer.enable_checkpointing
+        false`` also drops the callbacks that save checkpoints, which Lightning would otherwise refuse beside it."""
         from lightning.pytorch.callbacks import Checkpoint
 
         precision = config.get("precision")
@@ -210,7 +198,8 @@ class ICPRLCLI(LightningCLI):
                 c for c in self.trainer_defaults.get("callbacks", []) if not isinstance(c, Checkpoint)]}
         own = config.get("callbacks")
         own = [] if own is None else own if isinstance(own, list) else [own]
-        named = [c for c in named_callbacks(callbacks, own) if saving or not isinstance(c, Checkpoint)]
+        named = [c for c, (_, _, kind) in zip(callbacks, NAMED_CALLBACKS.values(), strict=True)
+                 if c is not None and not any(kind(o) for o in own) and (saving or not isinstance(c, Checkpoint))]
         config["callbacks"] = [*named, *own]
         return super()._instantiate_trainer(config, [])
 
@@ -280,9 +269,7 @@ class ICPRLCLI(LightningCLI):
         self.check_pairing()
         self.check_checkpoint_fits()
 
-    def before_test(self) -> None:
-        self.check_pairing()
-        self.check_checkpoint_fits()
+    before_test = before_validate
 
     def before_predict(self) -> None:
         self.check_checkpoint_fits()

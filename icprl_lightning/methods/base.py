@@ -30,27 +30,6 @@ from icprl_lightning.validation import (
 )
 
 
-def fit_input_normalizers(module: L.LightningModule) -> None:
-    """Fits every input normalizer of ``module`` that is not fitted yet on what the DataModule hands over for it:
-    the training split's arrays of the fields its batches serve (``PreferenceData.train_arrays``; so a preference
-    method never sees the scale of a stored reward). Once: a resumed or fine-tuned fit, or a frozen stage loaded
-    from its checkpoint, keeps its statistics. Every rank reads the whole split, so all agree. Call it from
-    ``on_fit_start``."""
-    from icprl_lightning.data_contract import PreferenceData
-
-    normalizers = [m for m in module.modules() if isinstance(m, InputNormalizer) and not m.fitted]
-    if not normalizers:
-        return
-    data = module.trainer.datamodule
-    if not isinstance(data, PreferenceData):
-        raise ValueError(f"{type(module).__name__}: normalize_inputs fits its statistics on the training arrays a "
-                         "DataModule of the data contract hands over (icprl_lightning.data_contract.PreferenceData."
-                         f"train_arrays), and this fit's DataModule is {type(data).__name__}")
-    split = data.train_arrays()
-    for normalizer in normalizers:
-        normalizer.fit(split)
-
-
 def save_groups(module: L.LightningModule, backbone: TransformerConfig,
                 optimizer: OptimizerConfig) -> tuple[TransformerConfig, OptimizerConfig]:
     """Save ``module``'s constructor arguments as its hyperparameters, the backbone and the optimizer as plain dicts
@@ -62,7 +41,45 @@ def save_groups(module: L.LightningModule, backbone: TransformerConfig,
     return groups
 
 
-class InContextModule(L.LightningModule):
+class MethodModule(L.LightningModule):
+    """What every method shares (``InContextModule``, ``RewardGenModule``): the checks and statistics of a fit's
+    start, AdamW as its ``optimizer`` group says (``methods/schedule.py``), the checkpoint's class and checksum."""
+
+    optimizer_config: OptimizerConfig
+
+    def on_fit_start(self) -> None:
+        """Checks this model against the data it is fitted on (``validation.check_pairing``: what ``icprl fit``
+        checks, here for a fit without the CLI too), then fits every input normalizer not fitted yet on what the
+        data hands over for it: the training split's arrays of the fields its batches serve
+        (``PreferenceData.train_arrays``; so a preference method never sees the scale of a stored reward). Once: a
+        resumed or fine-tuned fit, or a frozen stage loaded from its checkpoint, keeps its statistics. Every rank
+        reads the whole split, so all agree."""
+        from icprl_lightning.data_contract import PreferenceData
+        from icprl_lightning.validation import check_pairing
+
+        data = self.trainer.datamodule
+        if isinstance(data, PreferenceData):
+            check_pairing(self, data)
+        normalizers = [m for m in self.modules() if isinstance(m, InputNormalizer) and not m.fitted]
+        if normalizers and not isinstance(data, PreferenceData):
+            raise ValueError(f"{type(self).__name__}: normalize_inputs fits its statistics on the training arrays a "
+                             "DataModule of the data contract hands over (icprl_lightning.data_contract."
+                             f"PreferenceData.train_arrays), and this fit's DataModule is {type(data).__name__}")
+        split = data.train_arrays() if normalizers else None
+        for normalizer in normalizers:
+            normalizer.fit(split)
+
+    def configure_optimizers(self):
+        return configure_adamw(self, self.optimizer_config)
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""
+        from icprl_lightning.checkpoints import stamp
+
+        stamp(self, checkpoint)
+
+
+class InContextModule(MethodModule):
     """Base LightningModule of DPT, DP²T and ICPO (see the module docstring).
 
     ``consumes``: the context kinds of the data it trains on (by default its ``context_kind``); the CLI
@@ -95,16 +112,6 @@ class InContextModule(L.LightningModule):
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.policy = InContextPolicy(context_kind, state_dim, self.action_spec, self.backbone, max_context,
                                       normalize_inputs, layout)
-
-    def on_fit_start(self) -> None:
-        """Checks this model against the data it is fitted on (``validation.check_pairing``: what ``icprl fit``
-        checks, here for a fit without the CLI too), then fits the input statistics on what the data hands over."""
-        from icprl_lightning.data_contract import PreferenceData
-        from icprl_lightning.validation import check_pairing
-
-        if isinstance(self.trainer.datamodule, PreferenceData):
-            check_pairing(self, self.trainer.datamodule)
-        fit_input_normalizers(self)
 
     @property
     def consumes(self) -> tuple[str, ...]:
@@ -143,15 +150,6 @@ class InContextModule(L.LightningModule):
         # each rank; a no-op in one process. Train metrics are per step and stay rank 0's own.
         self.log("val/loss", loss, prog_bar=True, sync_dist=True, batch_size=batch.batch_size)
         self.log_dict({f"val/{k}": v for k, v in metrics.items()}, sync_dist=True, batch_size=batch.batch_size)
-
-    def configure_optimizers(self):
-        return configure_adamw(self, self.optimizer_config)
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""
-        from icprl_lightning.checkpoints import stamp
-
-        stamp(self, checkpoint)
 
     def make_agent(self, greedy: bool = True, use_cache: bool = True, seed: int | None = None, compile: bool = False):
         from icprl_lightning.deploy import Agent

@@ -11,46 +11,34 @@ checked once, here, when it is made. In a config::
         backbone: {n_layer: 3, n_embd: 64, n_head: 4}   # or --model.init_args.backbone.n_layer 4
         optimizer: {lr: 0.001}                          # or --model.init_args.optimizer.lr 1e-3
 
-The context length (``max_context``) is in neither: the CLI links it from the DataModule into each method. A
-checkpoint stores each as a plain dict (``as_dict``), since a checkpoint is read without unpickling any class;
-``coerce`` turns that dict back (``checkpoints.hyperparameters`` gathers the flat keys older checkpoints saved).
+The CLI links the context length (``max_context``) from the DataModule. A checkpoint stores each group as a plain
+dict (``as_dict``: it is read without unpickling any class); ``coerce`` turns that dict back.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
-from numbers import Integral, Real
 from typing import Any, ClassVar
 
-from icprl_lightning.validation import HyperparameterError
+from icprl_lightning.validation import (
+    HyperparameterError,
+    check_choice,
+    check_int,
+    check_interval,
+    check_nonnegative,
+    check_positive,
+)
 
 LR_SCHEDULES = ("constant", "cosine")  # methods/schedule.py
 
 
 @dataclass(frozen=True)  # a dataclass too: jsonargparse reads a dataclass as a group only if its bases all are
 class _Group:
-    """What both groups share: the key a method takes them by, their errors, ``as_dict`` and ``coerce``."""
+    """What both groups share: the key a method takes them by (errors read "backbone.n_layer: must be ..."),
+    ``as_dict`` and ``coerce``."""
 
     group: ClassVar[str]
-
-    def _fail(self, key: str, rule: str, value: Any) -> None:
-        raise HyperparameterError(f"{self.group}.{key}: must be {rule}, got {value!r}")
-
-    def _int(self, key: str, minimum: int) -> None:
-        value = getattr(self, key)
-        if isinstance(value, bool) or not isinstance(value, Integral):
-            self._fail(key, "an integer", value)
-        if value < minimum:
-            self._fail(key, f">= {minimum}", value)
-
-    def _real(self, key: str, rule: str, ok: Any) -> None:
-        value = getattr(self, key)
-        if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value):
-            self._fail(key, "a finite number", value)
-        if not ok(value):
-            self._fail(key, rule, value)
 
     def as_dict(self) -> dict[str, Any]:
         """The values as plain values: what a checkpoint's hyperparameters hold."""
@@ -83,11 +71,11 @@ class TransformerConfig(_Group):
 
     def __post_init__(self) -> None:
         for key in ("n_layer", "n_embd", "n_head"):
-            self._int(key, 1)
+            check_int("backbone.", key, getattr(self, key), 1)
         if self.n_embd % self.n_head:
             raise HyperparameterError(f"backbone.n_head: must divide backbone.n_embd (each head gets n_embd / n_head "
                                       f"channels), got n_head={self.n_head} with n_embd={self.n_embd}")
-        self._real("dropout", "in [0.0, 1.0)", lambda p: 0.0 <= p < 1.0)
+        check_interval("backbone.", "dropout", self.dropout, 0.0, 1.0, closed="left")
 
 
 @dataclass(frozen=True)
@@ -101,11 +89,10 @@ class OptimizerConfig(_Group):
     warmup_steps: int = 0          # optimizer steps of the cosine schedule's warm-up
 
     def __post_init__(self) -> None:
-        self._real("lr", "> 0", lambda lr: lr > 0)
-        self._real("weight_decay", ">= 0", lambda wd: wd >= 0)
-        if self.lr_schedule not in LR_SCHEDULES:
-            self._fail("lr_schedule", f"one of {list(LR_SCHEDULES)}", self.lr_schedule)
-        self._int("warmup_steps", 0)
+        check_positive("optimizer.", "lr", self.lr)
+        check_nonnegative("optimizer.", "weight_decay", self.weight_decay)
+        check_choice("optimizer.", "lr_schedule", self.lr_schedule, LR_SCHEDULES)
+        check_int("optimizer.", "warmup_steps", self.warmup_steps, 0)
 
 
 DEFAULT_BACKBONE = TransformerConfig()  # every method's default but RewardGen's (methods/reward_gen.py)

@@ -209,7 +209,7 @@ def _fifo(path: Path) -> Path:
                                               ("normalize_inputs", 1, "true or false"),
                                               ("lambda_on_preferred", "no", "true or false"),
                                               ("max_context", 6.0, "an integer"),
-                                              ("optimizer.lr", float("nan"), "a finite number"),
+                                              ("optimizer.lr", float("nan"), "finite"),
                                               ("lam", "0.5", "a finite number")])
 def test_a_resealed_config_json_of_the_wrong_type_is_refused(model_dir, tmp_path, key, value, kind):
     model = _copy(model_dir, tmp_path)
