@@ -195,7 +195,7 @@ def pairing_errors(model: Any, datamodule: Any, callbacks: Iterable[Any] = ()) -
             if evaluation not in datamodule.offers:
                 errors.append(f"{type(cb).__name__} reads {evaluation}() of the data, but {d_name} ({produced} "
                               f"contexts) has none: it needs {EVALUATIONS.get(evaluation, evaluation)}, or drop the "
-                              "callback")
+                              "callback (the default evaluation: evaluation: null)")
     return errors
 
 
