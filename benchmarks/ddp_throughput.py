@@ -60,7 +60,7 @@ def run(config: str, processes: int, threads: int, steps: int, workdir: Path) ->
                "--trainer.num_sanity_val_steps", "0", "--trainer.logger", "false",
                "--trainer.enable_checkpointing", "false", "--trainer.enable_progress_bar", "false",
                "--trainer.enable_model_summary", "false", "--trainer.default_root_dir", str(workdir),
-               "--trainer.callbacks", json.dumps([timer])]
+               "--trainer.callbacks", json.dumps([timer]), "--evaluation", "null"]
     env = {**os.environ, "OMP_NUM_THREADS": str(threads), "WANDB_MODE": "disabled",
            "PYTHONPATH": os.pathsep.join([str(REPO / "benchmarks"), os.environ.get("PYTHONPATH", "")])}
     subprocess.run(command, check=True, env=env, cwd=REPO, stdout=subprocess.DEVNULL)

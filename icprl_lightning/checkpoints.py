@@ -19,9 +19,10 @@ A checkpoint is untrusted input, so reading one never runs code from it:
 * Every floating tensor of the weights and the optimizer state must be finite: a NaN moment would resume
   into an all-NaN model.
 
-Hyperparameters are read through ``hyperparameters``, which gathers the sizes that earlier versions saved flat
-(``n_layer``, ``n_embd``, ``n_head``, ``dropout``, also inside ICRG's ``reward_gen_hparams`` and
-``cross_fit_hparams``) into the ``backbone`` dict every method now takes (``models/config.py``). It returns a new
+Hyperparameters are read through ``hyperparameters``, which gathers the keys that earlier versions saved flat into
+the groups every method now takes (``models/config.py``): the sizes (``n_layer``, ``n_embd``, ``n_head``,
+``dropout``, also inside ICRG's ``reward_gen_hparams`` and ``cross_fit_hparams``) into ``backbone``, the optimizer's
+(``lr``, ``weight_decay``, ``lr_schedule``, ``warmup_steps``) into ``optimizer``. It returns a new
 dict after the checks above and never changes the file's own entries, so the checksum and the seal still cover
 exactly what was saved.
 
@@ -56,7 +57,9 @@ CLASS_KEY = "icprl_class_path"
 CHECKSUM_KEY = "icprl_sha256"
 SEAL_KEY = "icprl_seal"
 LIGHTNING_SPECIAL_PATHS = ("best", "last", "hpc")  # ``ckpt_path`` values the Trainer resolves itself
-FLAT_BACKBONE = ("n_layer", "n_embd", "n_head", "dropout")  # the backbone's sizes, as earlier versions saved them
+# each group's keys, as earlier versions saved them flat among the other hyperparameters
+FLAT_GROUPS = {"backbone": ("n_layer", "n_embd", "n_head", "dropout"),
+               "optimizer": ("lr", "weight_decay", "lr_schedule", "warmup_steps")}
 
 
 def checksum(class_name: str, hparams: dict[str, Any], state_dict: dict[str, Any]) -> str:
@@ -247,24 +250,26 @@ def verify(ckpt: dict[str, Any], path: str | Path, expected: type | None = None,
     return ckpt
 
 
-def _gather_backbone(hparams: Any) -> Any:
-    """``hparams`` with flat backbone sizes (``FLAT_BACKBONE``) gathered into a ``backbone`` dict (a new dict);
-    anything else as it is."""
-    if not isinstance(hparams, dict) or "backbone" in hparams or not any(k in hparams for k in FLAT_BACKBONE):
+def _gather_groups(hparams: Any) -> Any:
+    """``hparams`` with each group's flat keys (``FLAT_GROUPS``) gathered into its dict (a new dict); anything
+    else as it is."""
+    if not isinstance(hparams, dict):
         return hparams
-    out = {k: v for k, v in hparams.items() if k not in FLAT_BACKBONE}
-    out["backbone"] = {k: hparams[k] for k in FLAT_BACKBONE if k in hparams}
+    out = dict(hparams)
+    for group, keys in FLAT_GROUPS.items():
+        if group not in out and any(k in out for k in keys):
+            out[group] = {k: out.pop(k) for k in keys if k in out}
     return out
 
 
 def hyperparameters(ckpt: dict[str, Any]) -> dict[str, Any]:
-    """A verified checkpoint's hyperparameters as this version's constructors take them (a new dict): flat sizes
-    gathered into ``backbone``, also in the RewardGen architectures an ICRG checkpoint holds."""
-    hparams = _gather_backbone(dict(ckpt["hyper_parameters"]))
+    """A verified checkpoint's hyperparameters as this version's constructors take them (a new dict): flat keys
+    gathered into their groups, also in the RewardGen architectures an ICRG checkpoint holds."""
+    hparams = _gather_groups(dict(ckpt["hyper_parameters"]))
     if "reward_gen_hparams" in hparams:
-        hparams["reward_gen_hparams"] = _gather_backbone(hparams["reward_gen_hparams"])
+        hparams["reward_gen_hparams"] = _gather_groups(hparams["reward_gen_hparams"])
     if isinstance(hparams.get("cross_fit_hparams"), list):
-        hparams["cross_fit_hparams"] = [_gather_backbone(h) for h in hparams["cross_fit_hparams"]]
+        hparams["cross_fit_hparams"] = [_gather_groups(h) for h in hparams["cross_fit_hparams"]]
     return hparams
 
 

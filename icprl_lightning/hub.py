@@ -131,7 +131,7 @@ def load_model(source: str | Path, map_location: str | torch.device = "cpu"):
 
 def _build(ckpt: dict[str, Any], config_file: Path):
     """The allow-listed class built from the hyperparameters, as ``checkpoints.build_module`` builds it (only the
-    class's own arguments; flat backbone sizes gathered), with its initial weights."""
+    class's own arguments; flat keys gathered into their groups), with its initial weights."""
     cls = method_class(ckpt[checkpoints.CLASS_KEY])
     accepted = inspect.signature(cls.__init__).parameters
     hparams = {k: v for k, v in checkpoints.hyperparameters(ckpt).items() if k in accepted and k != "self"}

@@ -44,7 +44,9 @@ def hyperparameter_cause(error: BaseException) -> HyperparameterError | None:
 
 
 def _fail(owner: str, key: str, rule: str, value: Any) -> None:
-    raise HyperparameterError(f"{owner}: {key} must be {rule}, got {value!r}")
+    """"ICPOModule: beta must be ..."; a group's key (owner "backbone.") reads "backbone.n_layer: must be ..."."""
+    where = f"{owner}{key}:" if owner.endswith(".") else f"{owner}: {key}"
+    raise HyperparameterError(f"{where} must be {rule}, got {value!r}")
 
 
 def _number(owner: str, key: str, value: Any, integer: bool) -> float:
@@ -136,12 +138,6 @@ def check_range(owner: str, key: str, value: Any) -> tuple[float, float] | None:
     return low, high
 
 
-def check_optimizer(owner: str, lr: Any, weight_decay: Any) -> None:
-    """The optimizer arguments of every method (the backbone's sizes check themselves: ``models/config.py``)."""
-    check_positive(owner, "lr", lr)
-    check_nonnegative(owner, "weight_decay", weight_decay)
-
-
 def check_sizes(owner: str, state_dim: Any, action_dim: Any) -> None:
     check_int(owner, "state_dim", state_dim, 0)
     check_int(owner, "action_dim", action_dim, 1)
@@ -199,7 +195,7 @@ def pairing_errors(model: Any, datamodule: Any, callbacks: Iterable[Any] = ()) -
             if evaluation not in datamodule.offers:
                 errors.append(f"{type(cb).__name__} reads the held-out {evaluation} of the data, but {d_name} "
                               f"({produced} contexts) has none: it needs {EVALUATIONS.get(evaluation, evaluation)}, "
-                              "or drop the callback")
+                              "or drop the callback (the default evaluation: evaluation: null)")
     return errors
 
 

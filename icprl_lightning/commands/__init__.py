@@ -2,7 +2,7 @@
 program in this folder. Library modules hold no ``main()`` and import no argparse; each program here parses its
 options and calls the library.
 
-    icprl fit --config configs/icpo_darkroom.yaml [--model.init_args.lr 1e-3] [--print_config]
+    icprl fit --config configs/icpo_darkroom.yaml [--model.init_args.optimizer.lr 1e-3] [--print_config]
     icprl fit --config configs/icpo_darkroom.yaml --config configs/paper/icpo_darkroom.yaml   # an overlay
     icprl validate --config configs/icpo_darkroom.yaml --ckpt_path runs/.../last.ckpt
     icprl generate --config configs/icpo_darkroom.yaml [--data.init_args.overwrite true]

@@ -24,7 +24,7 @@ import lightning as L
 from lightning.pytorch.cli import LightningArgumentParser, LightningCLI, SaveConfigCallback
 
 from icprl_lightning.callbacks.atomic_io import use_atomic_saves
-from icprl_lightning.callbacks.defaults import default_callbacks
+from icprl_lightning.callbacks.defaults import NAMED_CALLBACKS, default_callbacks
 from icprl_lightning.callbacks.run_directory import run_directory, unique_logger_versions
 from icprl_lightning.callbacks.run_logs import wandb_in_run_directory
 from icprl_lightning.progress import is_terminal
@@ -55,32 +55,25 @@ def _close(word: str, options: list[str]) -> str:
     return f" (did you mean {found[0]!r}?)" if found else ""
 
 
-def _class_arguments(class_path: str) -> list[str]:
-    """The ``__init__`` arguments of a class jsonargparse already imported (never imports anything itself)."""
+def _arguments(class_path: str) -> dict[str, list[str]]:
+    """The ``__init__`` arguments of a class jsonargparse already imported (never imports anything itself), over the
+    whole MRO (a subclass may forward **kwargs to its base): each with its keys if it is a group (a dataclass, e.g.
+    a method's ``backbone`` or ``optimizer``), else []."""
     module, _, name = class_path.rpartition(".")
     cls = getattr(sys.modules.get(module), name, None)
-    if not isinstance(cls, type):
-        return []
-    names = []  # the whole MRO: a subclass may forward **kwargs to its base
-    for klass in cls.__mro__:
-        if "__init__" in vars(klass):
-            names += [p for p in inspect.signature(klass.__init__).parameters if p not in ("self", "args", "kwargs")]
-    return names
-
-
-def _group_keys(class_path: str, group: str) -> list[str]:
-    """The keys of a class's dataclass-typed ``__init__`` argument ``group`` (e.g. a method's ``backbone``)."""
-    module, _, name = class_path.rpartition(".")
-    cls = getattr(sys.modules.get(module), name, None)
+    arguments: dict[str, list[str]] = {}
     for klass in cls.__mro__ if isinstance(cls, type) else ():
         if "__init__" in vars(klass):
             try:
-                hint = typing.get_type_hints(klass.__init__).get(group)
+                hints = typing.get_type_hints(klass.__init__)
             except Exception:  # an annotation that does not resolve outside type checking
-                continue
-            if dataclasses.is_dataclass(hint):
-                return [f.name for f in dataclasses.fields(hint)]
-    return []
+                hints = {}
+            for key in inspect.signature(klass.__init__).parameters:
+                group = hints.get(key)
+                if key not in ("self", "args", "kwargs", *arguments):
+                    arguments[key] = [f.name for f in dataclasses.fields(group)] if dataclasses.is_dataclass(
+                        group) else []
+    return arguments
 
 
 def _option_names(parser: Any) -> list[str]:
@@ -103,8 +96,10 @@ def summarize_parse_error(message: str, parser: Any) -> str:
         if m := re.search(r"Option '([^']+)' is not accepted", line):
             key = ".init_args.".join([*keys, m.group(1)]) if keys else m.group(1)
             owner = classes[-1].rpartition(".")[2] if classes else "this class"
+            known = _arguments(classes[-1]) if classes else {}  # a key moved into a group: --model.init_args.lr
+            moved = [f"{group}.{m.group(1)}" for group, keys in known.items() if m.group(1) in keys]
             return (f"{key}: {owner} has no argument {m.group(1)!r}"
-                    f"{_close(m.group(1), _class_arguments(classes[-1]) if classes else [])}")
+                    + (f" (it is {moved[0]!r} now)" if moved else _close(m.group(1), list(known))))
         if m := re.search(r"module '([^']+)' has no attribute '([^']+)'", line):
             module = sys.modules.get(m.group(1))
             names = [n for n in dir(module) if isinstance(getattr(module, n, None), type)] if module else []
@@ -115,7 +110,7 @@ def summarize_parse_error(message: str, parser: Any) -> str:
         if nested:  # a key inside a dataclass argument, e.g. model.init_args.backbone.n_layers
             group, option = nested.groups()
             key = ".init_args.".join([*keys, group]) + f".{option}"
-            return f"{key}: {group} has no key {option!r}{_close(option, _group_keys(classes[-1], group))}"
+            return f"{key}: {group} has no key {option!r}{_close(option, _arguments(classes[-1]).get(group, []))}"
         if m := re.match(r"[Uu]nrecognized arguments: (\S+)", line):
             option = m.group(1).split("=", 1)[0]
             return f"unknown option {option}{_close(option, _option_names(parser))}"
@@ -187,18 +182,26 @@ class ICPRLCLI(LightningCLI):
             raise CLIError(summarize_parse_error(str(e), sub)) from None
 
     def _instantiate_trainer(self, config: dict[str, Any], callbacks: list) -> L.Trainer:
-        """As LightningCLI's, but ``--trainer.enable_checkpointing false`` also drops the default callbacks that
-        save checkpoints (``LastCheckpoint``), which Lightning would otherwise refuse beside that flag."""
+        """As LightningCLI's, but the named callbacks (``callbacks/defaults.NAMED_CALLBACKS``; ``null`` drops one)
+        come before the config's own, unless those hold one of their kind (a config listing its evaluation or
+        ``ModelCheckpoint`` itself, as before these defaults, runs it once), and ``--trainer.enable_checkpointing
+        false`` also drops the callbacks that save checkpoints, which Lightning would otherwise refuse beside it."""
+        from lightning.pytorch.callbacks import Checkpoint
+
         precision = config.get("precision")
         if precision is not None and str(precision) not in PRECISIONS:  # before the Trainer imports or casts anything
             raise CLIError(f"trainer.precision {str(precision)!r} is refused: the batches are float32, so the weights "
                            f"stay float32 (autocast allowed); use one of {', '.join(PRECISIONS[::2])}")
-        if config.get("enable_checkpointing") is False:
-            from lightning.pytorch.callbacks import Checkpoint
-
+        saving = config.get("enable_checkpointing") is not False
+        if not saving:
             self.trainer_defaults = {**self.trainer_defaults, "callbacks": [
                 c for c in self.trainer_defaults.get("callbacks", []) if not isinstance(c, Checkpoint)]}
-        return super()._instantiate_trainer(config, callbacks)
+        own = config.get("callbacks")
+        own = [] if own is None else own if isinstance(own, list) else [own]
+        named = [c for c, (_, _, kind) in zip(callbacks, NAMED_CALLBACKS.values(), strict=True)
+                 if c is not None and not any(kind(o) for o in own) and (saving or not isinstance(c, Checkpoint))]
+        config["callbacks"] = [*named, *own]
+        return super()._instantiate_trainer(config, [])
 
     def _parse_ckpt_path(self) -> None:
         """Check the ``ckpt_path`` Lightning will load, on the parsed config (``checkpoints.checkpoint_for_
@@ -221,6 +224,9 @@ class ICPRLCLI(LightningCLI):
         super()._parse_ckpt_path()
 
     def add_arguments_to_parser(self, parser: LightningArgumentParser) -> None:
+        for key, (base, default, _) in NAMED_CALLBACKS.items():  # a config changes or drops them by key, not position
+            parser.add_lightning_class_args(base, key, subclass_mode=True, required=False)
+            parser.set_defaults({key: default})
         links = {"state_dim": lambda d: d.state_dim, "action_dim": lambda d: d.action_spec.size,
                  "discrete": lambda d: d.action_spec.discrete, "max_context": lambda d: d.context_length}
         for name, fn in links.items():
@@ -263,9 +269,7 @@ class ICPRLCLI(LightningCLI):
         self.check_pairing()
         self.check_checkpoint_fits()
 
-    def before_test(self) -> None:
-        self.check_pairing()
-        self.check_checkpoint_fits()
+    before_test = before_validate
 
     def before_predict(self) -> None:
         self.check_checkpoint_fits()

@@ -47,7 +47,7 @@ from icprl_lightning.contexts import RewardTrajectoryContext, as_tensor
 from icprl_lightning.deploy import Agent
 from icprl_lightning.methods.base import InContextModule
 from icprl_lightning.methods.losses import supervised_action_loss
-from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
+from icprl_lightning.models.config import DEFAULT_BACKBONE, DEFAULT_OPTIMIZER, OptimizerConfig, TransformerConfig
 from icprl_lightning.models.policy import InContextPolicy
 from icprl_lightning.online import OnlineAgent, PairRule
 from icprl_lightning.samples import Samples
@@ -73,15 +73,13 @@ class ADModule(InContextModule):
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
                  context_kind: str = "reward_trajectory", backbone: TransformerConfig = DEFAULT_BACKBONE,
-                 lr: float = 3e-4, weight_decay: float = 0.0, normalize_inputs: bool = False,
-                 lr_schedule: str = "constant", warmup_steps: int = 0) -> None:
+                 optimizer: OptimizerConfig = DEFAULT_OPTIMIZER, normalize_inputs: bool = False) -> None:
         check_choice(type(self).__name__, "context_kind", context_kind, HISTORY_KINDS)
         if context_kind == "step_preference" and not discrete:
             raise HyperparameterError("ADModule: context_kind step_preference predicts the next duel as one of A² "
                                       "ordered pairs of discrete actions; this data's actions are continuous")
-        super().__init__(context_kind, state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
-                         weight_decay=weight_decay, normalize_inputs=normalize_inputs, layout="merged",
-                         lr_schedule=lr_schedule, warmup_steps=warmup_steps)
+        super().__init__(context_kind, state_dim, action_dim, discrete, max_context, backbone=backbone,
+                         optimizer=optimizer, normalize_inputs=normalize_inputs, layout="merged")
         if self.duels:  # one logit per ordered pair (a, a'): the policy's head, so every deployment path uses it
             self.policy.head = nn.Linear(self.backbone.n_embd, action_dim * action_dim)
 

@@ -3,8 +3,8 @@
 A method subclass defines ``loss(batch) -> (loss, metrics)`` — its training objective from the paper, read off
 the typed samples of ``samples.py`` — and inherits logging, Adam, checkpoint metadata for ``load_agent`` and
 ``make_agent``. The environment's sizes (``state_dim``, ``action_dim``, ``discrete``, ``max_context``) are linked
-from the DataModule by the CLI, so a config names them once; the network's come whole as ``backbone``
-(``models/config.py``), passed on by keyword.
+from the DataModule by the CLI, so a config names them once; the network's sizes come whole as ``backbone`` and the
+optimizer's settings as ``optimizer`` (``models/config.py``), passed on by keyword.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import torch
 from torch import Tensor
 
 from icprl_lightning.contexts import ActionSpec, Context
-from icprl_lightning.methods.schedule import LR_SCHEDULES, with_schedule
-from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
+from icprl_lightning.methods.schedule import configure_adamw
+from icprl_lightning.models.config import DEFAULT_BACKBONE, DEFAULT_OPTIMIZER, OptimizerConfig, TransformerConfig
 from icprl_lightning.models.normalization import InputNormalizer
 from icprl_lightning.models.policy import LAYOUTS, InContextPolicy
 from icprl_lightning.samples import Samples
@@ -26,43 +26,60 @@ from icprl_lightning.validation import (
     check_choice,
     check_int,
     check_kind,
-    check_optimizer,
     check_sizes,
 )
 
 
-def fit_input_normalizers(module: L.LightningModule) -> None:
-    """Fits every input normalizer of ``module`` that is not fitted yet on what the DataModule hands over for it:
-    the training split's arrays of the fields its batches serve (``PreferenceData.train_arrays``; so a preference
-    method never sees the scale of a stored reward). Once: a resumed or fine-tuned fit, or a frozen stage loaded
-    from its checkpoint, keeps its statistics. Every rank reads the whole split, so all agree. Call it from
-    ``on_fit_start``."""
-    from icprl_lightning.data_contract import PreferenceData
-
-    normalizers = [m for m in module.modules() if isinstance(m, InputNormalizer) and not m.fitted]
-    if not normalizers:
-        return
-    data = module.trainer.datamodule
-    if not isinstance(data, PreferenceData):
-        raise ValueError(f"{type(module).__name__}: normalize_inputs fits its statistics on the training arrays a "
-                         "DataModule of the data contract hands over (icprl_lightning.data_contract.PreferenceData."
-                         f"train_arrays), and this fit's DataModule is {type(data).__name__}")
-    split = data.train_arrays()
-    for normalizer in normalizers:
-        normalizer.fit(split)
-
-
-def save_backbone(module: L.LightningModule, backbone: TransformerConfig) -> TransformerConfig:
-    """Save ``module``'s constructor arguments as its hyperparameters, the backbone as a plain dict (a checkpoint is
-    read without unpickling any class, ``checkpoints.py``); returns the backbone as a ``TransformerConfig`` (given as
-    one, or as the dict a checkpoint holds)."""
-    config = TransformerConfig.coerce(backbone)
+def save_groups(module: L.LightningModule, backbone: TransformerConfig,
+                optimizer: OptimizerConfig) -> tuple[TransformerConfig, OptimizerConfig]:
+    """Save ``module``'s constructor arguments as its hyperparameters, the backbone and the optimizer as plain dicts
+    (a checkpoint is read without unpickling any class, ``checkpoints.py``); returns them as their dataclasses
+    (given as one, or as the dict a checkpoint holds)."""
+    groups = TransformerConfig.coerce(backbone), OptimizerConfig.coerce(optimizer)
     module.save_hyperparameters(frame=inspect.currentframe().f_back)
-    module.save_hyperparameters({**module.hparams, "backbone": config.as_dict()})
-    return config
+    module.save_hyperparameters({**module.hparams, **{g.group: g.as_dict() for g in groups}})
+    return groups
 
 
-class InContextModule(L.LightningModule):
+class MethodModule(L.LightningModule):
+    """What every method shares (``InContextModule``, ``RewardGenModule``): the checks and statistics of a fit's
+    start, AdamW as its ``optimizer`` group says (``methods/schedule.py``), the checkpoint's class and checksum."""
+
+    optimizer_config: OptimizerConfig
+
+    def on_fit_start(self) -> None:
+        """Checks this model against the data it is fitted on (``validation.check_pairing``: what ``icprl fit``
+        checks, here for a fit without the CLI too), then fits every input normalizer not fitted yet on what the
+        data hands over for it: the training split's arrays of the fields its batches serve
+        (``PreferenceData.train_arrays``; so a preference method never sees the scale of a stored reward). Once: a
+        resumed or fine-tuned fit, or a frozen stage loaded from its checkpoint, keeps its statistics. Every rank
+        reads the whole split, so all agree."""
+        from icprl_lightning.data_contract import PreferenceData
+        from icprl_lightning.validation import check_pairing
+
+        data = self.trainer.datamodule
+        if isinstance(data, PreferenceData):
+            check_pairing(self, data)
+        normalizers = [m for m in self.modules() if isinstance(m, InputNormalizer) and not m.fitted]
+        if normalizers and not isinstance(data, PreferenceData):
+            raise ValueError(f"{type(self).__name__}: normalize_inputs fits its statistics on the training arrays a "
+                             "DataModule of the data contract hands over (icprl_lightning.data_contract."
+                             f"PreferenceData.train_arrays), and this fit's DataModule is {type(data).__name__}")
+        split = data.train_arrays() if normalizers else None
+        for normalizer in normalizers:
+            normalizer.fit(split)
+
+    def configure_optimizers(self):
+        return configure_adamw(self, self.optimizer_config)
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""
+        from icprl_lightning.checkpoints import stamp
+
+        stamp(self, checkpoint)
+
+
+class InContextModule(MethodModule):
     """Base LightningModule of DPT, DP²T and ICPO (see the module docstring).
 
     ``consumes``: the context kinds of the data it trains on (by default its ``context_kind``); the CLI
@@ -74,42 +91,27 @@ class InContextModule(L.LightningModule):
     needs_query_labels = False
 
     def __init__(self, context_kind: str, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
-                 backbone: TransformerConfig = DEFAULT_BACKBONE, lr: float = 3e-4, weight_decay: float = 0.0,
+                 backbone: TransformerConfig = DEFAULT_BACKBONE, optimizer: OptimizerConfig = DEFAULT_OPTIMIZER,
                  queries_per_context: int | None = None, normalize_inputs: bool = False,
-                 layout: str = "appended", lr_schedule: str = "constant", warmup_steps: int = 0) -> None:
+                 layout: str = "appended") -> None:
         owner = type(self).__name__
         check_kind(owner, "context_kind", context_kind)
         check_sizes(owner, state_dim, action_dim)
         check_bool(owner, "discrete", discrete)
         check_int(owner, "max_context", max_context, 1)
-        check_optimizer(owner, lr, weight_decay)
-        check_choice(owner, "lr_schedule", lr_schedule, LR_SCHEDULES)
-        check_int(owner, "warmup_steps", warmup_steps, 0)
         if queries_per_context is not None:
             check_int(owner, "queries_per_context", queries_per_context, 1)
         check_bool(owner, "normalize_inputs", normalize_inputs)
         check_choice(owner, "layout", layout, LAYOUTS)
         super().__init__()
-        self.backbone = save_backbone(self, backbone)
         # kept on the module, not read back from hparams: a subclass's constructor (a user's method) need not
         # re-declare every argument of this one for save_hyperparameters to record it
-        self.optimizer_settings = {"lr": lr, "weight_decay": weight_decay, "lr_schedule": lr_schedule,
-                                   "warmup_steps": warmup_steps}
+        self.backbone, self.optimizer_config = save_groups(self, backbone, optimizer)
         self.queries_per_context = queries_per_context
         self.context_kind = context_kind
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.policy = InContextPolicy(context_kind, state_dim, self.action_spec, self.backbone, max_context,
                                       normalize_inputs, layout)
-
-    def on_fit_start(self) -> None:
-        """Checks this model against the data it is fitted on (``validation.check_pairing``: what ``icprl fit``
-        checks, here for a fit without the CLI too), then fits the input statistics on what the data hands over."""
-        from icprl_lightning.data_contract import PreferenceData
-        from icprl_lightning.validation import check_pairing
-
-        if isinstance(self.trainer.datamodule, PreferenceData):
-            check_pairing(self, self.trainer.datamodule)
-        fit_input_normalizers(self)
 
     @property
     def consumes(self) -> tuple[str, ...]:
@@ -148,19 +150,6 @@ class InContextModule(L.LightningModule):
         # each rank; a no-op in one process. Train metrics are per step and stay rank 0's own.
         self.log("val/loss", loss, prog_bar=True, sync_dist=True, batch_size=batch.batch_size)
         self.log_dict({f"val/{k}": v for k, v in metrics.items()}, sync_dist=True, batch_size=batch.batch_size)
-
-    def configure_optimizers(self):
-        """AdamW at ``lr``, constant or on the warm-up + cosine schedule of ``methods/schedule.py``."""
-        settings = self.optimizer_settings
-        optimizer = torch.optim.AdamW(self.parameters(), lr=settings["lr"], weight_decay=settings["weight_decay"])
-        return with_schedule(optimizer, settings["lr_schedule"], settings["warmup_steps"],
-                             lambda: self.trainer.estimated_stepping_batches)
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""
-        from icprl_lightning.checkpoints import stamp
-
-        stamp(self, checkpoint)
 
     def make_agent(self, greedy: bool = True, use_cache: bool = True, seed: int | None = None, compile: bool = False):
         from icprl_lightning.deploy import Agent

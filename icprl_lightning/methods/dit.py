@@ -81,7 +81,7 @@ from icprl_lightning.methods.losses import (
     standardized_advantages,
     td_advantages,
 )
-from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
+from icprl_lightning.models.config import DEFAULT_BACKBONE, DEFAULT_OPTIMIZER, OptimizerConfig, TransformerConfig
 from icprl_lightning.models.estimator import InContextEstimator
 from icprl_lightning.samples import Samples
 from icprl_lightning.validation import check_choice, check_int, check_interval, check_nonnegative, check_positive
@@ -112,10 +112,9 @@ class DITModule(InContextModule):
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *, gamma: float = 0.95,
                  eta: float = 1.0, max_weight: float = 20.0, value_epochs: int = 2,
-                 backbone: TransformerConfig = DEFAULT_BACKBONE, lr: float = 3e-4, weight_decay: float = 0.0,
+                 backbone: TransformerConfig = DEFAULT_BACKBONE, optimizer: OptimizerConfig = DEFAULT_OPTIMIZER,
                  center_advantages: bool = True, advantage: str = "q_minus_v", value_auxiliary: float = 0.0,
-                 normalize_inputs: bool = False, lr_schedule: str = "constant",
-                 warmup_steps: int = 0) -> None:
+                 normalize_inputs: bool = False) -> None:
         owner = type(self).__name__
         check_interval(owner, "gamma", gamma, 0.0, 1.0)
         check_positive(owner, "eta", eta)
@@ -124,9 +123,8 @@ class DITModule(InContextModule):
         check_choice(owner, "center_advantages", center_advantages, (True, False))
         check_choice(owner, "advantage", advantage, ADVANTAGES)
         check_nonnegative(owner, "value_auxiliary", value_auxiliary)
-        super().__init__("reward_trajectory", state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
-                         weight_decay=weight_decay, normalize_inputs=normalize_inputs, lr_schedule=lr_schedule,
-                         warmup_steps=warmup_steps)
+        super().__init__("reward_trajectory", state_dim, action_dim, discrete, max_context, backbone=backbone,
+                         optimizer=optimizer, normalize_inputs=normalize_inputs)
         estimator = dict(context_kind="reward_trajectory", state_dim=state_dim, action_spec=self.action_spec,
                          backbone=self.backbone, max_context=max_context, normalize_inputs=normalize_inputs)
         self.q_value = InContextEstimator(with_action=True, **estimator)

@@ -12,7 +12,7 @@ from torch import Tensor
 
 from icprl_lightning.methods.base import InContextModule
 from icprl_lightning.methods.losses import supervised_action_loss
-from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
+from icprl_lightning.models.config import DEFAULT_BACKBONE, DEFAULT_OPTIMIZER, OptimizerConfig, TransformerConfig
 from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError
 
@@ -37,12 +37,11 @@ class DPTModule(SupervisedPretrainingModule):
     """DPT: reward context + optimal-action labels (the oracle baseline)."""
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
-                 backbone: TransformerConfig = DEFAULT_BACKBONE, lr: float = 3e-4, weight_decay: float = 0.0,
-                 queries_per_context: int | None = None, normalize_inputs: bool = False, lr_schedule: str = "constant",
-                 warmup_steps: int = 0) -> None:
-        super().__init__("reward", state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
-                         weight_decay=weight_decay, queries_per_context=queries_per_context,
-                         normalize_inputs=normalize_inputs, lr_schedule=lr_schedule, warmup_steps=warmup_steps)
+                 backbone: TransformerConfig = DEFAULT_BACKBONE, optimizer: OptimizerConfig = DEFAULT_OPTIMIZER,
+                 queries_per_context: int | None = None, normalize_inputs: bool = False) -> None:
+        super().__init__("reward", state_dim, action_dim, discrete, max_context, backbone=backbone,
+                         optimizer=optimizer, queries_per_context=queries_per_context,
+                         normalize_inputs=normalize_inputs)
 
 
 class DP2TModule(SupervisedPretrainingModule):
@@ -50,13 +49,12 @@ class DP2TModule(SupervisedPretrainingModule):
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
                  context_kind: str = "step_preference", backbone: TransformerConfig = DEFAULT_BACKBONE,
-                 lr: float = 3e-4, weight_decay: float = 0.0, queries_per_context: int | None = None,
-                 normalize_inputs: bool = False, lr_schedule: str = "constant",
-                 warmup_steps: int = 0) -> None:
+                 optimizer: OptimizerConfig = DEFAULT_OPTIMIZER, queries_per_context: int | None = None,
+                 normalize_inputs: bool = False) -> None:
         if context_kind not in PREFERENCE_KINDS:
             raise HyperparameterError(f"DP2TModule: context_kind must be one of {list(PREFERENCE_KINDS)}, got "
                                       f"{context_kind!r} (DP2T conditions on preferences; a reward context makes "
                                       "it DPT, DPTModule)")
-        super().__init__(context_kind, state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
-                         weight_decay=weight_decay, queries_per_context=queries_per_context,
-                         normalize_inputs=normalize_inputs, lr_schedule=lr_schedule, warmup_steps=warmup_steps)
+        super().__init__(context_kind, state_dim, action_dim, discrete, max_context, backbone=backbone,
+                         optimizer=optimizer, queries_per_context=queries_per_context,
+                         normalize_inputs=normalize_inputs)

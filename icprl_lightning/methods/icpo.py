@@ -48,7 +48,7 @@ from torch import Tensor
 from icprl_lightning.contexts import StepPreferenceContext
 from icprl_lightning.methods.base import InContextModule
 from icprl_lightning.methods.losses import icpo_continuous_loss, icpo_loss, soft_label_loss
-from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
+from icprl_lightning.models.config import DEFAULT_BACKBONE, DEFAULT_OPTIMIZER, OptimizerConfig, TransformerConfig
 from icprl_lightning.models.tokenizers import preferred_first
 from icprl_lightning.preferences import has_soft_labels
 from icprl_lightning.samples import ContextSamples
@@ -63,9 +63,8 @@ class ICPOModule(InContextModule):
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *, beta: float = 1.0,
                  lam: float = 0.5, pair_source: str = "other_trajectory", lambda_on_preferred: bool = False,
                  squared_distance: bool = False, backbone: TransformerConfig = DEFAULT_BACKBONE,
-                 lr: float = 3e-4, weight_decay: float = 0.0, queries_per_context: int | None = None,
-                 pair_steps: str = "shuffled", normalize_inputs: bool = False, layout: str = "appended",
-                 lr_schedule: str = "constant", warmup_steps: int = 0) -> None:
+                 optimizer: OptimizerConfig = DEFAULT_OPTIMIZER, queries_per_context: int | None = None,
+                 pair_steps: str = "shuffled", normalize_inputs: bool = False, layout: str = "appended") -> None:
         check_choice("ICPOModule", "pair_source", pair_source, PAIR_SOURCES)
         check_choice("ICPOModule", "pair_steps", pair_steps, PAIR_STEPS)
         check_positive("ICPOModule", "beta", beta)
@@ -83,10 +82,9 @@ class ICPOModule(InContextModule):
             raise HyperparameterError(f"ICPOModule: layout 'merged' scores all H steps in one pass of H tokens, so "
                                       f"queries_per_context would not shorten it; got {queries_per_context!r}, "
                                       "must be null")
-        super().__init__("step_preference", state_dim, action_dim, discrete, max_context, backbone=backbone, lr=lr,
-                         weight_decay=weight_decay, queries_per_context=queries_per_context,
-                         normalize_inputs=normalize_inputs, layout=layout, lr_schedule=lr_schedule,
-                         warmup_steps=warmup_steps)
+        super().__init__("step_preference", state_dim, action_dim, discrete, max_context, backbone=backbone,
+                         optimizer=optimizer, queries_per_context=queries_per_context,
+                         normalize_inputs=normalize_inputs, layout=layout)
 
     @property
     def needs_pairs(self) -> bool:  # type: ignore[override]

@@ -37,7 +37,7 @@ from icprl_lightning.contexts import ActionSpec, RewardTrajectoryContext, Trajec
 from icprl_lightning.deploy import Agent
 from icprl_lightning.methods.dit import DITModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
-from icprl_lightning.models.config import DEFAULT_BACKBONE, TransformerConfig
+from icprl_lightning.models.config import DEFAULT_BACKBONE, DEFAULT_OPTIMIZER, OptimizerConfig, TransformerConfig
 from icprl_lightning.models.estimator import InContextRewardModel
 from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import HyperparameterError
@@ -143,16 +143,14 @@ class ICRGModule(DITModule):
                  cross_fit_checkpoints: list[str] | None = None,
                  cross_fit_hparams: list[dict[str, Any]] | None = None, gamma: float = 0.95, eta: float = 1.0,
                  max_weight: float = 20.0, value_epochs: int = 2, backbone: TransformerConfig = DEFAULT_BACKBONE,
-                 lr: float = 3e-4, weight_decay: float = 0.0, center_advantages: bool = True,
-                 advantage: str = "q_minus_v", normalize_inputs: bool = False, lr_schedule: str = "constant",
-                 warmup_steps: int = 0) -> None:
+                 optimizer: OptimizerConfig = DEFAULT_OPTIMIZER, center_advantages: bool = True,
+                 advantage: str = "q_minus_v", normalize_inputs: bool = False) -> None:
         if advantage == "oracle":
             raise HyperparameterError("ICRGModule: advantage 'oracle' reads the oracle's A*, which a preference "
                                       "method never receives; it is for DIT on true rewards (DITModule)")
         super().__init__(state_dim, action_dim, discrete, max_context, gamma=gamma, eta=eta, max_weight=max_weight,
-                         value_epochs=value_epochs, backbone=backbone, lr=lr, weight_decay=weight_decay,
-                         center_advantages=center_advantages, advantage=advantage, normalize_inputs=normalize_inputs,
-                         lr_schedule=lr_schedule, warmup_steps=warmup_steps)
+                         value_epochs=value_epochs, backbone=backbone, optimizer=optimizer,
+                         center_advantages=center_advantages, advantage=advantage, normalize_inputs=normalize_inputs)
         weights = None
         sizes = {"state_dim": state_dim, "action_dim": action_dim, "discrete": discrete}
         if reward_gen_hparams is None:

@@ -33,22 +33,18 @@ RewardGen is not a policy: deploy it through an ICRG checkpoint (``methods/icrg.
 
 from __future__ import annotations
 
-import lightning as L
 import torch
 from torch import Tensor
 
 from icprl_lightning.contexts import ActionSpec, TrajectoryPreferenceContext
-from icprl_lightning.data_contract import PreferenceData
-from icprl_lightning.methods.base import fit_input_normalizers, save_backbone
+from icprl_lightning.methods.base import MethodModule, save_groups
 from icprl_lightning.methods.losses import trajectory_preference_loss
-from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.models.config import DEFAULT_OPTIMIZER, OptimizerConfig, TransformerConfig
 from icprl_lightning.models.estimator import InContextRewardModel
 from icprl_lightning.samples import ContextSamples
 from icprl_lightning.validation import (
     check_choice,
     check_int,
-    check_optimizer,
-    check_pairing,
     check_range,
     check_sizes,
 )
@@ -57,37 +53,29 @@ PAIR_SOURCES = ("other_pair", "context", "context_causal")
 REWARD_GEN_BACKBONE = TransformerConfig(n_layer=4, n_embd=32, n_head=4)  # R_ψ's default: deeper and narrower
 
 
-class RewardGenModule(L.LightningModule):
+class RewardGenModule(MethodModule):
     consumes = ("trajectory_preference",)  # the data kind it trains on (checked by the CLI)
     soft_labels = True  # its Bradley–Terry cross-entropy takes a label in [0, 1]: a tie (1/2) as it is
     needs_query_labels = False
 
     def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
                  pair_source: str = "other_pair", reward_range: list[float] | None = None,
-                 backbone: TransformerConfig = REWARD_GEN_BACKBONE, lr: float = 3e-4,
-                 weight_decay: float = 0.0, normalize_inputs: bool = False) -> None:
+                 backbone: TransformerConfig = REWARD_GEN_BACKBONE, optimizer: OptimizerConfig = DEFAULT_OPTIMIZER,
+                 normalize_inputs: bool = False) -> None:
         owner = "RewardGenModule"
         check_choice(owner, "pair_source", pair_source, PAIR_SOURCES)
         check_choice(owner, "normalize_inputs", normalize_inputs, (True, False))
         bounds = check_range(owner, "reward_range", reward_range)
         check_sizes(owner, state_dim, action_dim)
         check_int(owner, "max_context", max_context, 1)
-        check_optimizer(owner, lr, weight_decay)
         super().__init__()
-        self.backbone = save_backbone(self, backbone)
+        self.backbone, self.optimizer_config = save_groups(self, backbone, optimizer)
         causal = pair_source == "context_causal"
         self.hparams["causal"] = causal  # R_ψ's reading rule, saved for ICRG to copy (icrg.ARCHITECTURE)
         self.action_spec = ActionSpec(discrete=discrete, size=action_dim)
         self.reward = InContextRewardModel(state_dim, self.action_spec, self.backbone, max_context, causal=causal,
                                            reward_range=bounds, normalize_inputs=normalize_inputs)
         self._moments = torch.zeros(3, dtype=torch.float64)  # count, sum, sum of squares of val outputs
-
-    def on_fit_start(self) -> None:
-        """As ``InContextModule.on_fit_start``: the pairing check (for a fit without the CLI too), then the input
-        statistics (``normalize_inputs``: standardized states, models/normalization.py)."""
-        if isinstance(self.trainer.datamodule, PreferenceData):
-            check_pairing(self, self.trainer.datamodule)
-        fit_input_normalizers(self)
 
     @property
     def needs_pairs(self) -> bool:
@@ -149,15 +137,6 @@ class RewardGenModule(L.LightningModule):
             std = max((squares / n - mean**2) ** 0.5, 1e-6)
             self.reward.reward_mean.fill_(mean)
             self.reward.reward_std.fill_(std)
-
-    def configure_optimizers(self) -> torch.optim.Optimizer:
-        return torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        """The class ``load_agent`` rebuilds and the checksum it verifies (``checkpoints.py``)."""
-        from icprl_lightning.checkpoints import stamp
-
-        stamp(self, checkpoint)
 
     def make_agent(self, greedy: bool = False, use_cache: bool = True, seed: int | None = None, compile: bool = False):
         raise TypeError("a RewardGen checkpoint holds a reward model, not a policy: train ICRG on it (configs/"

@@ -1,7 +1,7 @@
-"""The learning-rate schedule of an in-context method: constant (the paper's Adam at a fixed rate, the default)
-or ``cosine`` — a linear warm-up over ``warmup_steps`` optimizer steps from 0 to ``lr``, then a half cosine from
-``lr`` down to 0 at the fit's last step (Loshchilov & Hutter's SGDR without restarts, with the warm-up of
-Goyal et al.):
+"""Every method's optimizer: AdamW as ``models/config.OptimizerConfig`` says, its learning rate constant (the
+paper's Adam at a fixed rate, the default) or ``cosine`` — a linear warm-up over ``warmup_steps`` optimizer steps
+from 0 to ``lr``, then a half cosine from ``lr`` down to 0 at the fit's last step (Loshchilov & Hutter's SGDR
+without restarts, with the warm-up of Goyal et al.):
 
     lr_t = lr · t / w                                                  for t < w
     lr_t = lr · ½ (1 + cos(π · (t − w) / (T − w)))                     for w ≤ t ≤ T
@@ -15,11 +15,11 @@ is not saved, so a checkpoint holds no code).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
+import lightning as L
 import torch
 
-LR_SCHEDULES = ("constant", "cosine")
+from icprl_lightning.models.config import OptimizerConfig
 
 
 def warmup_cosine_factor(step: int, warmup_steps: int, total_steps: int) -> float:
@@ -31,15 +31,14 @@ def warmup_cosine_factor(step: int, warmup_steps: int, total_steps: int) -> floa
     return 0.5 * (1.0 + math.cos(math.pi * progress))
 
 
-def with_schedule(optimizer: torch.optim.Optimizer, schedule: str, warmup_steps: int,
-                  total_steps: Callable[[], int]):
-    """What ``configure_optimizers`` returns: the optimizer alone (``constant``), or with its per-step scheduler.
-
-    ``total_steps`` is called only for ``cosine``: a constant-rate module needs no trainer to build its optimizer.
-    """
+def configure_adamw(module: L.LightningModule, config: OptimizerConfig):
+    """What ``configure_optimizers`` returns: AdamW on every parameter of ``module``, alone (``constant``) or with its
+    per-step scheduler; only ``cosine`` reads the fit's step count (a constant-rate module needs no trainer)."""
+    optimizer = torch.optim.AdamW(module.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    schedule, warmup_steps = config.lr_schedule, config.warmup_steps
     if schedule == "constant":
         return optimizer
-    total_steps = int(total_steps())
+    total_steps = int(module.trainer.estimated_stepping_batches)
     if total_steps <= warmup_steps:
         raise ValueError(f"lr_schedule 'cosine': warmup_steps ({warmup_steps}) must be fewer than the fit's "
                          f"optimizer steps ({total_steps}: trainer.max_steps, or max_epochs × batches per epoch)")

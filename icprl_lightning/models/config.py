@@ -1,44 +1,69 @@
-"""The backbone's sizes in one frozen dataclass, ``TransformerConfig`` (nanoGPT's ``GPTConfig`` habit).
+"""The settings that travel together, each in one frozen dataclass (nanoGPT's ``GPTConfig`` habit): the backbone's
+sizes, ``TransformerConfig``, and the optimizer's, ``OptimizerConfig``.
 
 Paper, appendix "Implementation Details": every model (the policy T_θ, RewardGen's R_ψ, DIT's Q̂ and V̂) is a
-GPT-2-style causal transformer. Its sizes travel together: each method takes one ``backbone``, every network it
-builds reads it, and it is checked once, here, when it is made. In a config::
+GPT-2-style causal transformer trained with Adam (3e-4 at the paper's sizes). Each method takes one ``backbone``
+and one ``optimizer``, every network it builds reads the first, its ``configure_optimizers`` the second, and each is
+checked once, here, when it is made. In a config::
 
     model:
       init_args:
         backbone: {n_layer: 3, n_embd: 64, n_head: 4}   # or --model.init_args.backbone.n_layer 4
+        optimizer: {lr: 0.001}                          # or --model.init_args.optimizer.lr 1e-3
 
-The context length (``max_context``) is not here: the CLI links it from the DataModule into each method, and the
-learning rate and weight decay belong to the optimizer. A checkpoint stores the backbone as a plain dict
-(``as_dict``), since a checkpoint is read without unpickling any class; ``coerce`` turns that dict back.
+The CLI links the context length (``max_context``) from the DataModule. A checkpoint stores each group as a plain
+dict (``as_dict``: it is read without unpickling any class); ``coerce`` turns that dict back.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
-from numbers import Integral, Real
-from typing import Any
+from typing import Any, ClassVar
 
-from icprl_lightning.validation import HyperparameterError
+from icprl_lightning.validation import (
+    HyperparameterError,
+    check_choice,
+    check_int,
+    check_interval,
+    check_nonnegative,
+    check_positive,
+)
+
+LR_SCHEDULES = ("constant", "cosine")  # methods/schedule.py
 
 
-def _fail(key: str, rule: str, value: Any) -> None:
-    raise HyperparameterError(f"backbone.{key}: must be {rule}, got {value!r}")
+@dataclass(frozen=True)  # a dataclass too: jsonargparse reads a dataclass as a group only if its bases all are
+class _Group:
+    """What both groups share: the key a method takes them by (errors read "backbone.n_layer: must be ..."),
+    ``as_dict`` and ``coerce``."""
 
+    group: ClassVar[str]
 
-def _positive_int(key: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, Integral):
-        _fail(key, "an integer", value)
-    if value < 1:
-        _fail(key, ">= 1", value)
+    def as_dict(self) -> dict[str, Any]:
+        """The values as plain values: what a checkpoint's hyperparameters hold."""
+        return asdict(self)
+
+    @classmethod
+    def coerce(cls, value: Any) -> Any:
+        """``value`` itself, or the config its mapping describes (a checkpoint's ``as_dict``; missing keys take
+        the defaults). Anything else, or a key the group does not have, is a ``HyperparameterError``."""
+        if isinstance(value, cls):
+            return value
+        known = [f.name for f in fields(cls)]
+        if not isinstance(value, Mapping):
+            raise HyperparameterError(f"{cls.group}: must be a {cls.__name__} or a mapping of {known}, got {value!r}")
+        unknown = [k for k in value if k not in known]
+        if unknown:
+            raise HyperparameterError(f"{cls.group}: has no key {unknown[0]!r}; its keys are {known}")
+        return cls(**value)
 
 
 @dataclass(frozen=True)
-class TransformerConfig:
+class TransformerConfig(_Group):
     """The sizes of a GPT-2-style pre-LN causal transformer (``models/transformer.py``)."""
 
+    group: ClassVar[str] = "backbone"
     n_layer: int = 3      # transformer blocks
     n_embd: int = 64      # width of every token: the embeddings and the residual stream
     n_head: int = 4       # attention heads per block, each of n_embd / n_head channels
@@ -46,33 +71,29 @@ class TransformerConfig:
 
     def __post_init__(self) -> None:
         for key in ("n_layer", "n_embd", "n_head"):
-            _positive_int(key, getattr(self, key))
+            check_int("backbone.", key, getattr(self, key), 1)
         if self.n_embd % self.n_head:
             raise HyperparameterError(f"backbone.n_head: must divide backbone.n_embd (each head gets n_embd / n_head "
                                       f"channels), got n_head={self.n_head} with n_embd={self.n_embd}")
-        dropout = self.dropout
-        if isinstance(dropout, bool) or not isinstance(dropout, Real) or not math.isfinite(dropout):
-            _fail("dropout", "a finite number", dropout)
-        if not 0.0 <= dropout < 1.0:
-            _fail("dropout", "in [0.0, 1.0)", dropout)
+        check_interval("backbone.", "dropout", self.dropout, 0.0, 1.0, closed="left")
 
-    def as_dict(self) -> dict[str, Any]:
-        """The sizes as plain values: what a checkpoint's hyperparameters hold."""
-        return asdict(self)
 
-    @classmethod
-    def coerce(cls, value: TransformerConfig | Mapping[str, Any]) -> TransformerConfig:
-        """``value`` itself, or the config its mapping describes (a checkpoint's ``as_dict``; missing keys take
-        the defaults above). Anything else, or a key that is not a size, is a ``HyperparameterError``."""
-        if isinstance(value, cls):
-            return value
-        known = [f.name for f in fields(cls)]
-        if not isinstance(value, Mapping):
-            raise HyperparameterError(f"backbone: must be a TransformerConfig or a mapping of {known}, got {value!r}")
-        unknown = [k for k in value if k not in known]
-        if unknown:
-            raise HyperparameterError(f"backbone: has no key {unknown[0]!r}; its keys are {known}")
-        return cls(**value)
+@dataclass(frozen=True)
+class OptimizerConfig(_Group):
+    """AdamW's settings and its learning-rate schedule (``methods/schedule.py``)."""
+
+    group: ClassVar[str] = "optimizer"
+    lr: float = 3e-4               # the learning rate (the paper's Adam: 3e-4), the peak of a cosine schedule
+    weight_decay: float = 0.0      # AdamW's decoupled weight decay
+    lr_schedule: str = "constant"  # "constant" (the paper's), or "cosine": linear warm-up, then half a cosine to 0
+    warmup_steps: int = 0          # optimizer steps of the cosine schedule's warm-up
+
+    def __post_init__(self) -> None:
+        check_positive("optimizer.", "lr", self.lr)
+        check_nonnegative("optimizer.", "weight_decay", self.weight_decay)
+        check_choice("optimizer.", "lr_schedule", self.lr_schedule, LR_SCHEDULES)
+        check_int("optimizer.", "warmup_steps", self.warmup_steps, 0)
 
 
 DEFAULT_BACKBONE = TransformerConfig()  # every method's default but RewardGen's (methods/reward_gen.py)
+DEFAULT_OPTIMIZER = OptimizerConfig()

@@ -5,7 +5,7 @@ constant offsets (over the data a dimension's std is 0.03–0.2 while its mean r
 −‖tcp − goal‖ has a std of 0.06, so the differences that locate the goal are a small part of each token after a
 default-initialised linear embedding and LayerNorm. Standardizing makes every input dimension O(1).
 
-The statistics come from the training split once, when a fit starts (``InContextModule.on_fit_start``), and are
+The statistics come from the training split once, when a fit starts (``MethodModule.on_fit_start``), and are
 buffers: checkpoints carry them and a deployed agent standardizes its raw context and query states the same way.
 Dimensions that are constant over the data keep σ = 1. Actions are not touched (one-hot, or already in [−1, 1]).
 Only fields with "states" or "rewards" in their name are read, so no method sees more of the data than it did.

@@ -280,7 +280,7 @@ def test_paper_configs_have_the_paper_architecture_and_data():
         args = cfg["model"]["init_args"]
         assert args["backbone"] == {"n_layer": 8, "n_embd": 256, "n_head": 8}, name
         assert cfg["data"]["init_args"]["setting"]["init_args"]["trajectories_per_task"] == 5000
-        assert args["lr"] == 3e-4
+        assert args["optimizer"] == {"lr": 3e-4}
 
 
 @pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier

@@ -282,7 +282,7 @@ def test_trajectory_preference_round_trip_and_dp2t(tmp_path):
     for context in (batch.context, batch.pair):
         assert isinstance(context, TrajectoryPreferenceContext)
         context.validate(dm.state_dim, dm.action_spec)
-    data_args = ["--data", "icprl_lightning.data.recorded.RecordedPreferenceDataModule",
+    data_args = ["--data", "icprl_lightning.data.recorded.RecordedPreferenceDataModule", "--evaluation", "null",
                  "--data.init_args.data_dir", str(tmp_path / "ds"), "--data.init_args.query_labels", "true",
                  "--trainer.fast_dev_run", "1", "--trainer.logger", "false", "--trainer.default_root_dir",
                  str(tmp_path), "--trainer.enable_progress_bar", "false"]

@@ -78,12 +78,12 @@ import pytest
 import torch
 
 from icprl_lightning import StepPreferenceContext, TrajectoryPreferenceContext, load_agent
-from icprl_lightning.checkpoints import FLAT_BACKBONE, checkpoint_for_lightning, hyperparameters, load_raw, verify
+from icprl_lightning.checkpoints import FLAT_GROUPS, checkpoint_for_lightning, hyperparameters, load_raw, verify
 from icprl_lightning.commands.checkpoint import main as checkpoint_main
 from icprl_lightning.commands.trainer import CLIError, _verified_sizes_fit
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.icrg import ICRGModule
-from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.models.config import OptimizerConfig, TransformerConfig
 
 LEGACY = Path(__file__).resolve().parents[1] / "fixtures" / "legacy"
 ICPO, ICRG = LEGACY / "icpo_1x8.ckpt", LEGACY / "icrg_1x8.ckpt"
@@ -115,14 +115,16 @@ def test_legacy_icrg_labels_and_acts_as_it_did():
 
 
 @pytest.mark.parametrize("path", [ICPO, ICRG])
-def test_legacy_files_verify_as_saved_and_read_with_a_backbone(path):
+def test_legacy_files_verify_as_saved_and_read_with_a_backbone_and_an_optimizer(path):
     raw = load_raw(path)
     verify(raw, path, require_seal=True)  # checksum and seal: the entries as saved
     saved = raw["hyper_parameters"]
-    assert "backbone" not in saved and set(FLAT_BACKBONE) <= set(saved)
+    backbone, optimizer = FLAT_GROUPS["backbone"], FLAT_GROUPS["optimizer"]
+    assert not {"backbone", "optimizer"} & set(saved) and set(backbone) <= set(saved) and "lr" in saved
     read = hyperparameters(raw)
-    assert not set(FLAT_BACKBONE) & set(read) and read["backbone"]["n_embd"] == 8
-    TransformerConfig.coerce(read["backbone"])
+    assert not set(backbone + optimizer) & set(read) and read["backbone"]["n_embd"] == 8
+    assert read["optimizer"] == {k: saved[k] for k in optimizer if k in saved}
+    TransformerConfig.coerce(read["backbone"]), OptimizerConfig.coerce(read["optimizer"])
     assert raw["hyper_parameters"] is saved and "backbone" not in saved  # the file's own entry is not rewritten
     verify(raw, path, require_seal=True)
 

@@ -107,9 +107,8 @@ def _config(tmp_path, method: dict, setting: str, data_flags: dict) -> str:
     config = {
         "seed_everything": 0,
         "trainer": {"accelerator": "cpu", "max_steps": 30, "logger": False, "enable_progress_bar": False,
-                    "default_root_dir": str(tmp_path), "check_val_every_n_epoch": 1,
-                    "callbacks": [{"class_path": "icprl_lightning.callbacks.rollout.InContextRolloutCallback",
-                                   "init_args": {"print_table": False}}]},
+                    "default_root_dir": str(tmp_path), "check_val_every_n_epoch": 1},
+        "evaluation": {"print_table": False}, "best_checkpoint": None,
         "model": method,
         "data": {"class_path": "icprl_lightning.data.PreferenceDataModule",
                  "init_args": {"family": {"class_path": f"{__name__}.ChainFamily"},
@@ -124,7 +123,7 @@ def _config(tmp_path, method: dict, setting: str, data_flags: dict) -> str:
     return str(path)
 
 
-SIZES = {"backbone": {"n_layer": 1, "n_embd": 16, "n_head": 2}, "lr": 0.003}
+SIZES = {"backbone": {"n_layer": 1, "n_embd": 16, "n_head": 2}, "optimizer": {"lr": 0.003}}
 
 
 @pytest.mark.parametrize(("method", "setting", "flags"), [

@@ -1,6 +1,7 @@
-"""The backbone on the command line and in configs (``models/config.py``): YAML ``backbone: {n_layer: ...}``, flags
-``--model.init_args.backbone.n_layer 4``, each method's own default for the keys not given; a wrong key or value
-inside it is one line on stderr and exit status 2, before anything is generated."""
+"""The backbone and the optimizer on the command line and in configs (``models/config.py``): YAML
+``backbone: {n_layer: ...}``, flags ``--model.init_args.backbone.n_layer 4``, each method's own default for the keys
+not given; a wrong key or value inside either is one line on stderr and exit status 2, before anything is
+generated."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from icprl_lightning.commands import main, run_cli
-from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.models.config import OptimizerConfig, TransformerConfig
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -32,6 +33,13 @@ def test_the_backbone_from_yaml_flags_and_overlays(extra, expected, tmp_path):
     assert model.hparams.backbone == expected.as_dict()  # plain values: what the checkpoint stores
 
 
+def test_the_optimizer_from_yaml_and_flags(tmp_path):
+    model = _model(tmp_path, "--config", str(REPO / "configs/icpo_darkroom.yaml"),
+                   "--model.init_args.optimizer.lr_schedule", "cosine", "--model.init_args.optimizer.warmup_steps", "5")
+    expected = OptimizerConfig(lr=1e-3, lr_schedule="cosine", warmup_steps=5)  # the config's lr kept
+    assert model.optimizer_config == expected and model.hparams.optimizer == expected.as_dict()
+
+
 def test_a_method_keeps_its_own_default_for_the_keys_not_given(tmp_path):
     model = _model(tmp_path, "--model", "icprl_lightning.methods.reward_gen.RewardGenModule",
                    "--data", "icprl_lightning.data.PreferenceDataModule",
@@ -50,6 +58,9 @@ def test_a_method_keeps_its_own_default_for_the_keys_not_given(tmp_path):
     (["--model.init_args.backbone.n_head", "3"],
      "backbone.n_head: must divide backbone.n_embd (each head gets n_embd / n_head channels), got n_head=3 with "
      "n_embd=64"),
+    (["--model.init_args.lr", "0.01"],
+     "model.init_args.lr: ICPOModule has no argument 'lr' (it is 'optimizer.lr' now)"),
+    (["--model.init_args.optimizer.lr", "0"], "optimizer.lr: must be > 0, got 0.0"),
 ])
 def test_a_wrong_backbone_key_or_value_is_one_line(extra, expected, tmp_path, capsys):
     capsys.readouterr()

@@ -33,10 +33,10 @@ def test_config_runs_under_fast_dev_run(config, tmp_path):
 
 
 def test_overrides_reach_the_model(tmp_path):
-    cli = run_cli(["fit", "--config", "configs/icpo_darkroom.yaml", "--model.init_args.lr", "0.01",
+    cli = run_cli(["fit", "--config", "configs/icpo_darkroom.yaml", "--model.init_args.optimizer.lr", "0.01",
                    "--model.init_args.lam", "0.3", "--trainer.fast_dev_run", "1", "--trainer.logger", "false",
                    *tiny_data_args(tmp_path)])
-    assert cli.model.hparams.lr == 0.01 and cli.model.hparams.lam == 0.3
+    assert cli.model.hparams.optimizer["lr"] == 0.01 and cli.model.hparams.lam == 0.3
 
 
 @pytest.mark.slow  # end to end through the CLI or several processes: the full suite's tier

@@ -54,20 +54,6 @@ def test_a_trainer_group_changes_the_hardware_and_keeps_the_experiment(group, ex
 
 
 
-@pytest.mark.parametrize("size", ["small", "tprl_small", "paper", "paper_metaworld_tprl"])
-def test_a_backbone_group_stacks_on_any_config(size, monkeypatch, tmp_path):
-    """``configs/model/<size>.yaml`` is a backbone: ``--model.init_args.backbone FILE`` gives a run that size; the
-    configs themselves write their size inline, so a config copied elsewhere still parses."""
-    monkeypatch.chdir(tmp_path)
-    written = yaml.safe_load((REPO / f"configs/model/{size}.yaml").read_text())
-    cli = run_cli(["--config", CONFIG, "--model.init_args.backbone", str(REPO / f"configs/model/{size}.yaml")],
-                  run=False)
-    assert {k: cli.model.hparams.backbone[k] for k in written} == written
-    sizes = {yaml.safe_load(p.read_text())["model"]["init_args"].get("backbone", {}).get("n_embd")
-             for p in [*REPO.glob("configs/*.yaml"), *REPO.glob("configs/paper/*.yaml")]}
-    assert written["n_embd"] in sizes  # a size some config of the project uses
-
-
 DATA_GROUPS = sorted(p.stem for p in (REPO / "configs/data").glob("*.yaml"))
 
 

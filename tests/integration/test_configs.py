@@ -3,8 +3,8 @@
 An overlay holds values only (no ``class_path``: its base picks the classes) and its header names the base
 (``# base: configs/x.yaml``) and the exact command (the ``icprl fit`` line, ``\\``-continued). The test runs
 that command's arguments, so the documented command is the tested one. jsonargparse merges a second
-``--config`` into the first: ``model.init_args`` / ``data.init_args`` without a ``class_path`` keep the
-base's class, and a list of the same length (``trainer.callbacks``) is merged item by item.
+``--config`` into the first: ``model.init_args`` / ``data.init_args`` and the named callbacks (``evaluation``,
+``best_checkpoint``) without a ``class_path`` keep the base's class; nothing is merged by list position.
 Instantiating builds the trainer, the model and the DataModule; it generates no data.
 """
 
@@ -23,6 +23,7 @@ import yaml
 from jsonargparse import Namespace
 from lightning.pytorch.callbacks import EarlyStopping
 
+from icprl_lightning.callbacks.defaults import NAMED_CALLBACKS
 from icprl_lightning.commands import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
@@ -67,7 +68,7 @@ def instantiate(args: list[str], monkeypatch, tmp_path) -> Any:
 
 
 def leaves(tree: Any, prefix: tuple = ()) -> list[tuple[tuple, Any]]:
-    """(path, value) of every scalar; list items are indexed, so callbacks pair up with the base's by position."""
+    """(path, value) of every scalar (list items indexed)."""
     if isinstance(tree, dict):
         return [leaf for key, value in tree.items() for leaf in leaves(value, (*prefix, key))]
     if isinstance(tree, list):
@@ -118,10 +119,12 @@ def test_overlay_stacks_on_its_base(overlay, monkeypatch, tmp_path):
     # the classes are the base's ...
     assert type(cli.model) is resolve(base_written["model"]["class_path"])
     assert type(cli.datamodule) is resolve(base_written["data"]["class_path"])
-    assert [c.class_path for c in cli.config.trainer.callbacks][:len(base_written["trainer"]["callbacks"])] == [
-        c["class_path"] for c in base_written["trainer"]["callbacks"]]
+    for key, (_, default, _) in NAMED_CALLBACKS.items():  # a named callback's class too (None: dropped by the base)
+        expected = base_written.get(key, default)
+        assert (cli.config[key] and cli.config[key].class_path) == (
+            expected and expected.get("class_path", default["class_path"])), key
     # ... every value the overlay writes is in the resolved config ...
-    for path, value in leaves(written):
+    for path, value in leaves({k: v for k, v in written.items() if k not in NAMED_CALLBACKS}):
         if isinstance(value, str) and value.endswith(".yaml"):  # a config group's file, e.g. the backbone
             held = lookup(cli.config, path)
             value = yaml.safe_load(((REPO / overlay).parent / value).read_text())
@@ -136,15 +139,14 @@ def test_overlay_stacks_on_its_base(overlay, monkeypatch, tmp_path):
         if isinstance(value, dict):  # a dataclass argument (the backbone): the keys the overlay writes
             held = {k: held[k] for k in value}
         assert held == value, (overlay, key)
-    items = written["trainer"].get("callbacks")
-    for item, base_item in zip(items or [], base_written["trainer"]["callbacks"] if items else [], strict=True):
-        callback = next(c for c in cli.trainer.callbacks if type(c) is resolve(base_item["class_path"]))
-        for key, value in item.get("init_args", {}).items():
+    for name in set(written) & set(NAMED_CALLBACKS):
+        callback = next(c for c in cli.trainer.callbacks if type(c) is resolve(cli.config[name].class_path))
+        for key, value in written[name].items():
             held = getattr(callback, key, getattr(callback, f"_{key}", None))
             assert held == (str(Path(value).resolve()) if key == "dirpath" else value), (overlay, key, held)
     assert cli.trainer.max_epochs == lookup(cli.config, ("trainer", "max_epochs"))
     # the paper's optimizer settings, common to every paper-sized run (appendix "Implementation Details")
-    assert cli.model.hparams.lr == 3e-4 and cli.config.data.init_args.batch_size == 32
+    assert cli.model.hparams.optimizer["lr"] == 3e-4 and cli.config.data.init_args.batch_size == 32
     assert cli.model.hparams.max_context == cli.datamodule.context_length
 
 
@@ -154,3 +156,38 @@ def test_paper_early_stopping_is_in_the_command(overlay, monkeypatch, tmp_path):
     cli = instantiate(header_command(overlay), monkeypatch, tmp_path)
     stops = [c for c in cli.trainer.callbacks if isinstance(c, EarlyStopping)]
     assert len(stops) == 1 and stops[0].monitor == "val/loss"
+
+
+# ---- named callbacks (callbacks/defaults.py NAMED_CALLBACKS) --------------------------------------------------
+
+@pytest.mark.parametrize(("extra", "kinds"), [
+    ([], ["InContextRolloutCallback", "ModelCheckpoint", "LastCheckpoint"]),
+    (["--trainer.callbacks+=lightning.pytorch.callbacks.EarlyStopping", "--trainer.callbacks.monitor=val/loss",
+      "--best_checkpoint", "null"], ["InContextRolloutCallback", "EarlyStopping", "LastCheckpoint"]),
+    (["--evaluation.every_n_epochs", "3", "--trainer.enable_checkpointing", "false"], ["InContextRolloutCallback"]),
+    (["--evaluation", "null", "--best_checkpoint.filename", "best"], ["ModelCheckpoint", "LastCheckpoint"]),
+])
+def test_named_callbacks_come_first_change_by_key_and_null_drops_one(extra, kinds, monkeypatch, tmp_path):
+    cli = instantiate(["--config", "configs/icpo_darkroom.yaml", *extra], monkeypatch, tmp_path)
+    named = {"InContextRolloutCallback", "ModelCheckpoint", "LastCheckpoint", "EarlyStopping"}
+    assert [type(c).__name__ for c in cli.trainer.callbacks if type(c).__name__ in named] == kinds
+    rollout = next((c for c in cli.trainer.callbacks if type(c).__name__ == "InContextRolloutCallback"), None)
+    assert rollout is None or rollout.every_n_epochs == (3 if "3" in extra else 1)
+    assert all(c.filename == ("best" if "best" in extra else None) for c in cli.trainer.callbacks
+               if type(c).__name__ == "ModelCheckpoint")
+
+
+def test_a_config_listing_its_evaluation_and_checkpoint_itself_runs_each_once(monkeypatch, tmp_path):
+    """The form before the named callbacks: what ``trainer.callbacks`` holds replaces the default of its kind."""
+    written = yaml.safe_load((REPO / "configs/icpo_darkroom.yaml").read_text())
+    written["trainer"]["callbacks"] = [
+        {"class_path": "icprl_lightning.callbacks.rollout.InContextRolloutCallback",
+         "init_args": {"every_n_epochs": 3}},
+        {"class_path": "lightning.pytorch.callbacks.ModelCheckpoint",
+         "init_args": {"monitor": "val/loss", "filename": "mine"}}]
+    path = tmp_path / "old_form.yaml"
+    path.write_text(yaml.safe_dump(written))
+    cli = instantiate(["--config", str(path)], monkeypatch, tmp_path)
+    rollouts = [c.every_n_epochs for c in cli.trainer.callbacks if type(c).__name__ == "InContextRolloutCallback"]
+    best = [c.filename for c in cli.trainer.callbacks if type(c).__name__ == "ModelCheckpoint"]
+    assert rollouts == [3] and best == ["mine"]

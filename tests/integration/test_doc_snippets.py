@@ -98,7 +98,7 @@ def _bandit_checkpoint(workdir: Path) -> dict[str, str]:
                          n_eval_problems=4, batch_size=4, progress=False)
     run_cli(["fit", "--config", str(REPO / "configs/icpo_bandit.yaml"), "--trainer.logger", "false",
              "--trainer.max_epochs", "1", "--trainer.limit_train_batches", "2", "--trainer.limit_val_batches", "1",
-             "--trainer.callbacks", "[]", "--trainer.default_root_dir", str(root), *data])
+             "--evaluation", "null", "--best_checkpoint", "null", "--trainer.default_root_dir", str(root), *data])
     return {"CHECKPOINT": str(next(root.rglob("*.ckpt")))}
 
 

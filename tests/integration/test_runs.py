@@ -130,8 +130,8 @@ def _resume_config(tmp_path: Path) -> Path:
     """configs/icpo_darkroom.yaml with only the default callbacks (last.ckpt at every epoch's end), no logger."""
     config = yaml.safe_load((REPO / "configs/icpo_darkroom.yaml").read_text())
     config["trainer"].update(logger=False, max_epochs=EPOCHS, limit_train_batches=STEPS_PER_EPOCH,
-                             enable_progress_bar=False, enable_model_summary=False, num_sanity_val_steps=0,
-                             callbacks=[])
+                             enable_progress_bar=False, enable_model_summary=False, num_sanity_val_steps=0)
+    config.update(evaluation=None, best_checkpoint=None)
     path = tmp_path / "icpo_resume.yaml"
     path.write_text(yaml.safe_dump(config))
     return path

@@ -86,7 +86,7 @@ def test_reward_gen_trains_on_ties_and_dp2t_refuses_them(tmp_path):
     _, summary, data = labelled(tmp_path, "darkroom_trajectories", 40, tie=8.0)  # returns within 8 steps: equal
     assert summary["ties"] > 0
     args = ["--data", "icprl_lightning.data.recorded.RecordedPreferenceDataModule", "--data.init_args.data_dir",
-            data, "--trainer.default_root_dir", str(tmp_path), *TINY]
+            data, "--trainer.default_root_dir", str(tmp_path), "--evaluation", "null", *TINY]  # no simulator
     cli = run_cli(["fit", "--model", "icprl_lightning.methods.reward_gen.RewardGenModule", *args])
     assert cli.trainer.state.finished and torch.isfinite(cli.trainer.callback_metrics["train/loss"])
     with pytest.raises(ValueError, match=r"holds soft labels \(ties stored as 0.5\) and DP2TModule trains on labels "

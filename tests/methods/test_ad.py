@@ -132,7 +132,8 @@ def test_the_loss_decreases_on_a_tiny_history(tmp_path):
     dm = _data(tmp_path)
     dm.prepare_data()
     torch.manual_seed(0)
-    model = ADModule(state_dim=2, action_dim=5, discrete=True, max_context=dm.context_length, lr=3e-3, **TINY)
+    model = ADModule(state_dim=2, action_dim=5, discrete=True, max_context=dm.context_length, optimizer={"lr": 3e-3},
+                     **TINY)
     batch = next(iter(dm.train_dataloader()))
     opt = model.configure_optimizers()
     first = model.loss(batch)[0].item()

@@ -335,7 +335,8 @@ def test_icprl_evaluate_writes_weak_and_strong_regret_of_the_run_and_every_basel
 def test_paper_config_has_the_paper_sizes():
     cli = run_cli([*config_args("configs/paper/icpo_bandit.yaml"), "--trainer.logger", "false"], run=False)
     hp, dm = cli.model.hparams, cli.datamodule
-    assert (hp.backbone, hp.lr, dm.batch_size) == ({"n_layer": 6, "n_embd": 256, "n_head": 8, "dropout": 0.0}, 3e-4, 32)
+    assert (hp.backbone, hp.optimizer["lr"], dm.batch_size) == (
+        {"n_layer": 6, "n_embd": 256, "n_head": 8, "dropout": 0.0}, 3e-4, 32)
     assert cli.model.backbone == TransformerConfig(n_layer=6, n_embd=256, n_head=8)
     assert dm.setting.n_problems["train"] * dm.trajectories_per_task[0] == 100_000
     assert (dm.family.n_arms, dm.family.dim, dm.context_length, hp.state_dim) == (20, 10, 200, 0)
@@ -358,7 +359,7 @@ def test_icpo_beats_uniform_random_duels_on_held_out_problems(tmp_path):
                          n_train_problems=2000, n_eval_problems=300, eval_sources=["uniform"], progress=False)
     cli = run_cli(["fit", "--config", "configs/icpo_bandit.yaml", "--trainer.logger", "false",
                    "--trainer.max_epochs", "1", "--trainer.enable_checkpointing", "false",
-                   "--trainer.enable_progress_bar", "false", "--trainer.callbacks", "[]",
+                   "--trainer.enable_progress_bar", "false", "--evaluation", "null",
                    "--trainer.default_root_dir", str(tmp_path), *data])
     suite = cli.datamodule.held_out("duels")[0]
     cli.model.eval()

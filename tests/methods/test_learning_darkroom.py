@@ -20,7 +20,7 @@ def test_icpo_beats_the_behavior_policy_on_held_out_goals(tmp_path):
     # β and λ of configs/icpo_darkroom.yaml (the β × λ sweep's pick)
     model = ICPOModule(state_dim=2, action_dim=5, discrete=True, max_context=100,
                        backbone=TransformerConfig(n_layer=2, n_embd=64, n_head=4),
-                       lr=1e-3, beta=0.1, lam=1.0)
+                       optimizer={"lr": 1e-3}, beta=0.1, lam=1.0)
     rollout = InContextRolloutCallback(seed=0, diagnostics=["flipped_labels", "random_labels", "other_task"])
     # 960 contexts / 32 = 30 steps an epoch: about 400 optimizer steps, validated (and rolled out) once at the end
     trainer = L.Trainer(max_epochs=13, check_val_every_n_epoch=13, limit_val_batches=1, logger=False,

@@ -17,15 +17,19 @@ from factories import save_untrained
 from icprl_lightning import StepPreferenceContext, load_agent, register_method
 from icprl_lightning.checkpoints import CLASS_KEY, checksum, seal
 from icprl_lightning.methods.base import InContextModule
+from icprl_lightning.models.config import OptimizerConfig
 from icprl_lightning.registry import BUILTIN_METHODS, ENTRY_POINT_GROUP, METHODS, method_class, method_names
+
+TOY_OPTIMIZER = OptimizerConfig(lr=1e-3)
 
 
 class ArgmaxOfPreferred(InContextModule):
     """A test's own method: cross-entropy toward the preferred action of the context's own comparisons."""
 
-    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *, lr: float = 1e-3):
+    def __init__(self, state_dim: int, action_dim: int, discrete: bool, max_context: int, *,
+                 optimizer: OptimizerConfig = TOY_OPTIMIZER):
         super().__init__("step_preference", state_dim, action_dim, discrete, max_context,
-                         backbone={"n_layer": 1, "n_embd": 16, "n_head": 2}, lr=lr)
+                         backbone={"n_layer": 1, "n_embd": 16, "n_head": 2}, optimizer=optimizer)
 
     def loss(self, batch):
         c = batch.context

@@ -362,7 +362,7 @@ def test_paper_configs_have_the_paper_architecture():
         args = cfg["model"]["init_args"]
         assert args["backbone"] == {"n_layer": 4, "n_embd": 32, "n_head": 4}, name
         assert cfg["data"]["init_args"]["setting"]["init_args"]["trajectories_per_task"] == 5000
-        assert args["lr"] == 3e-4
+        assert args["optimizer"] == {"lr": 3e-4}
 
 
 # ---- learning ----------------------------------------------------------------------------------------
@@ -379,7 +379,8 @@ def test_rewardgen_beats_chance_on_heldout_pairs(tmp_path):
     callback = HeldOutPairAccuracyCallback()
     trainer = L.Trainer(max_epochs=3, logger=False, enable_checkpointing=False, enable_progress_bar=False,
                         enable_model_summary=False, callbacks=[callback], num_sanity_val_steps=0)
-    model = RewardGenModule(**ENV, backbone=TransformerConfig(n_layer=2, n_embd=32, n_head=4), lr=1e-3)
+    model = RewardGenModule(**ENV, backbone=TransformerConfig(n_layer=2, n_embd=32, n_head=4),
+                            optimizer={"lr": 1e-3})
     trainer.fit(model, datamodule=dm)
     accuracy = callback.last_results["val/darkroom/heldout_pair_accuracy"]
     assert accuracy > 0.65, callback.last_results  # 240 held-out pairs: chance ± 4 sd is 0.5 ± 0.13

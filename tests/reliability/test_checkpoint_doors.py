@@ -161,7 +161,7 @@ def trained(tmp_path_factory) -> dict:
     root = tmp_path_factory.mktemp("fit")
     args = ["--config", CONFIG, "--trainer.logger", "false", "--trainer.default_root_dir", str(root),
             "--trainer.max_epochs", "1", "--trainer.limit_train_batches", "2", "--trainer.limit_val_batches", "1",
-            "--trainer.enable_progress_bar", "false", "--trainer.callbacks", "[]",
+            "--trainer.enable_progress_bar", "false", "--evaluation", "null", "--best_checkpoint", "null",
             *tiny_darkroom_args(str(root / "data"))]
     main(["fit", *args])
     (last,) = glob.glob(str(root / "**" / "last.ckpt"), recursive=True)

@@ -209,15 +209,18 @@ def _fifo(path: Path) -> Path:
                                               ("normalize_inputs", 1, "true or false"),
                                               ("lambda_on_preferred", "no", "true or false"),
                                               ("max_context", 6.0, "an integer"),
-                                              ("lr", float("nan"), "a finite number"),
+                                              ("optimizer.lr", float("nan"), "finite"),
                                               ("lam", "0.5", "a finite number")])
 def test_a_resealed_config_json_of_the_wrong_type_is_refused(model_dir, tmp_path, key, value, kind):
     model = _copy(model_dir, tmp_path)
     config = json.loads((model / CONFIG).read_text())
-    config["hyperparameters"][key] = value
+    *group, name = key.split(".")  # a key inside a group (optimizer.lr)
+    (config["hyperparameters"][group[0]] if group else config["hyperparameters"])[name] = value
     config[CHECKSUM_KEY] = checksum(config["method"], config["hyperparameters"], load_file(model / WEIGHTS))
     (model / CONFIG).write_text(json.dumps(config))
-    with pytest.raises(ValueError, match=rf"{model / CONFIG}: hyperparameter '{key}' of ICPOModule must be {kind}"):
+    refused = (rf"its hyperparameters do not build ICPOModule \(HyperparameterError: {key}: must be {kind}" if group
+               else f"hyperparameter '{key}' of ICPOModule must be {kind}")  # a group checks its own keys' types
+    with pytest.raises(ValueError, match=rf"{model / CONFIG}: {refused}"):
         load_agent(model)
 
 

@@ -29,7 +29,7 @@ from icprl_lightning.methods.dpt import DP2TModule, DPTModule
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.icrg import ICRGModule
 from icprl_lightning.methods.reward_gen import RewardGenModule
-from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.models.config import OptimizerConfig, TransformerConfig
 from icprl_lightning.validation import HyperparameterError, check_pairing, pairing_errors
 
 SIZES = dict(state_dim=2, action_dim=5, discrete=True, max_context=10)
@@ -37,11 +37,14 @@ REWARD_GEN_HP = dict(backbone=dict(n_layer=1, n_embd=8, n_head=2, dropout=0.0), 
 
 # ---- the methods --------------------------------------------------------------------------------------
 
-ARCHITECTURE_CASES = [("lr", 0.0), ("lr", -1e-3), ("lr", math.nan), ("weight_decay", -0.1), ("max_context", 0),
-                      ("state_dim", -1), ("action_dim", 0)]
-# the backbone's sizes: checked once, by TransformerConfig, however a method is given them
-BACKBONE_CASES = [("n_layer", 0), ("n_embd", 0), ("n_head", 0), ("n_head", 3), ("dropout", -0.1), ("dropout", 1.0),
-                  ("n_layer", 1.5), ("n_embd", True), ("dropout", math.inf)]
+ARCHITECTURE_CASES = [("max_context", 0), ("state_dim", -1), ("action_dim", 0)]
+# the groups (the backbone's sizes, the optimizer's settings): checked once, by their dataclass, however a method is
+# given them
+GROUP_CASES = [(TransformerConfig, key, value) for key, value in (
+    ("n_layer", 0), ("n_embd", 0), ("n_head", 0), ("n_head", 3), ("dropout", -0.1), ("dropout", 1.0), ("n_layer", 1.5),
+    ("n_embd", True), ("dropout", math.inf))] + [(OptimizerConfig, key, value) for key, value in (
+    ("lr", 0.0), ("lr", -1e-3), ("lr", math.nan), ("weight_decay", -0.1), ("lr_schedule", "linear"),
+    ("warmup_steps", -1), ("warmup_steps", 0.5))]
 METHODS = {
     "ICPOModule": lambda **kw: ICPOModule(**{**SIZES, **kw}),
     "DPTModule": lambda **kw: DPTModule(**{**SIZES, **kw}),
@@ -71,23 +74,25 @@ def test_method_rejects_bad_hyperparameter(method, key, value):
     assert method in str(err.value)
 
 
-@pytest.mark.parametrize(("key", "value"), BACKBONE_CASES)
-def test_backbone_rejects_bad_size(key, value):
-    with pytest.raises(HyperparameterError, match=rf"^backbone\.{key}: must "):
-        TransformerConfig(**{key: value})
+@pytest.mark.parametrize(("group", "key", "value"), GROUP_CASES)
+def test_a_group_rejects_a_bad_value(group, key, value):
+    with pytest.raises(HyperparameterError, match=rf"^{group.group}\.{key}: must "):
+        group(**{key: value})
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
-@pytest.mark.parametrize(("key", "value"), BACKBONE_CASES[:4])
-def test_method_rejects_bad_backbone_given_as_a_mapping(method, key, value):
-    with pytest.raises(HyperparameterError, match=rf"^backbone\.{key}: must "):
-        METHODS[method](backbone={key: value})
+@pytest.mark.parametrize(("group", "key", "value"), GROUP_CASES[:4] + GROUP_CASES[-7:-3])
+def test_method_rejects_a_bad_group_given_as_a_mapping(method, group, key, value):
+    with pytest.raises(HyperparameterError, match=rf"^{group.group}\.{key}: must "):
+        METHODS[method](**{group.group: {key: value}})
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
-def test_method_rejects_an_unknown_backbone_key(method):
-    with pytest.raises(HyperparameterError, match=r"^backbone: has no key 'n_layers'; its keys are \['n_layer'"):
-        METHODS[method](backbone={"n_layers": 2})
+@pytest.mark.parametrize(("group", "key", "first"),
+                         [("backbone", "n_layers", "n_layer"), ("optimizer", "lr_rate", "lr")])
+def test_method_rejects_an_unknown_group_key(method, group, key, first):
+    with pytest.raises(HyperparameterError, match=rf"^{group}: has no key '{key}'; its keys are \['{first}'"):
+        METHODS[method](**{group: {key: 2}})
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
@@ -256,13 +261,13 @@ KIND_CASES = [
     ("configs/icpo_darkroom.yaml", ["--data.init_args.setting", "icprl_lightning.data.settings.RewardContexts"],
      ["ICPOModule", "step_preference", "reward"]),
     ("configs/icpo_darkroom.yaml",
-     ["--trainer.callbacks+=icprl_lightning.callbacks.bandit_regret.BanditRegretCallback"],
+     ["--evaluation", "icprl_lightning.callbacks.bandit_regret.BanditRegretCallback"],
      ["BanditRegretCallback", "duels"]),
     ("configs/icpo_bandit.yaml",
-     ["--trainer.callbacks+=icprl_lightning.callbacks.rollout.InContextRolloutCallback"],
+     ["--evaluation", "icprl_lightning.callbacks.rollout.InContextRolloutCallback"],
      ["InContextRolloutCallback", "rollouts"]),
     ("configs/dp2t_darkroom_tprl.yaml",
-     ["--trainer.callbacks+=icprl_lightning.callbacks.pair_accuracy.HeldOutPairAccuracyCallback",
+     ["--evaluation", "icprl_lightning.callbacks.pair_accuracy.HeldOutPairAccuracyCallback",
       "--data.init_args.setting", "icprl_lightning.data.settings.StepPreferences",
       "--model.init_args.context_kind", "step_preference"],
      ["HeldOutPairAccuracyCallback", "pair_accuracy"]),

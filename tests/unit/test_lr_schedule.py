@@ -10,13 +10,14 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 
 from icprl_lightning.methods.icpo import ICPOModule
 from icprl_lightning.methods.schedule import warmup_cosine_factor
-from icprl_lightning.models.config import TransformerConfig
+from icprl_lightning.models.config import OptimizerConfig, TransformerConfig
 from icprl_lightning.validation import HyperparameterError
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 ENV = dict(state_dim=2, action_dim=5, discrete=True, max_context=100,
            backbone=TransformerConfig(n_layer=1, n_embd=16, n_head=2), pair_source="other_trajectory")
+COSINE = OptimizerConfig(lr=0.01, lr_schedule="cosine", warmup_steps=2)
 
 
 def test_the_factor_ramps_up_then_follows_half_a_cosine_to_zero():
@@ -46,29 +47,29 @@ def test_a_fit_steps_on_the_curve_and_a_resumed_fit_continues_it(tiny_ipref, tmp
     torch.manual_seed(0)
     record = RecordLR()
     saver = ModelCheckpoint(dirpath=tmp_path, every_n_train_steps=3, save_top_k=-1, filename="{step}")
-    _trainer(8, record, saver).fit(ICPOModule(**ENV, lr=0.01, lr_schedule="cosine", warmup_steps=2),
-                                   datamodule=tiny_ipref)
+    _trainer(8, record, saver).fit(ICPOModule(**ENV, optimizer=COSINE), datamodule=tiny_ipref)
     expected = {t: 0.01 * warmup_cosine_factor(t, 2, 8) for t in range(8)}
     assert record.rates == pytest.approx(expected)
 
     resumed = RecordLR()
     _trainer(8, resumed, enable_checkpointing=False).fit(
-        ICPOModule(**ENV, lr=0.01, lr_schedule="cosine", warmup_steps=2), datamodule=tiny_ipref,
+        ICPOModule(**ENV, optimizer=COSINE), datamodule=tiny_ipref,
         ckpt_path=tmp_path / "step=3.ckpt", weights_only=False)
     assert resumed.rates == pytest.approx({t: expected[t] for t in range(3, 8)})
 
 
 def test_the_default_is_the_constant_rate(tiny_ipref):
     record = RecordLR()
-    _trainer(3, record, enable_checkpointing=False).fit(ICPOModule(**ENV, lr=0.01), datamodule=tiny_ipref)
+    _trainer(3, record, enable_checkpointing=False).fit(ICPOModule(**ENV, optimizer={"lr": 0.01}),
+                                                        datamodule=tiny_ipref)
     assert record.rates == pytest.approx({0: 0.01, 1: 0.01, 2: 0.01})
 
 
 def test_a_wrong_schedule_or_a_warm_up_longer_than_the_fit_is_a_clear_error(tiny_ipref):
     with pytest.raises(HyperparameterError, match="lr_schedule"):
-        ICPOModule(**ENV, lr_schedule="linear")
+        ICPOModule(**ENV, optimizer={"lr_schedule": "linear"})
     with pytest.raises(HyperparameterError, match="warmup_steps"):
-        ICPOModule(**ENV, lr_schedule="cosine", warmup_steps=-1)
+        ICPOModule(**ENV, optimizer={"lr_schedule": "cosine", "warmup_steps": -1})
     with pytest.raises(ValueError, match=r"warmup_steps \(5\) must be fewer than the fit's optimizer steps \(4"):
-        _trainer(4, enable_checkpointing=False).fit(ICPOModule(**ENV, lr_schedule="cosine", warmup_steps=5),
-                                                    datamodule=tiny_ipref)
+        _trainer(4, enable_checkpointing=False).fit(
+            ICPOModule(**ENV, optimizer={"lr_schedule": "cosine", "warmup_steps": 5}), datamodule=tiny_ipref)
