@@ -1,20 +1,12 @@
 """In-context episodes on held-out MDP tasks through the public ``Agent``, and their summary.
 
-The paper's performance metric (section 6): the latent cumulative reward of an episode in an unseen
-task, with the agent conditioned on a fixed offline context from that task (no parameter updates, no
-reward observed). Returns are averaged per task, then summarized as mean ± standard error over tasks.
-``success`` (where the environment reports it, Meta-World Reach) is the share of episodes whose success
-flag was raised at some step, metaworld's criterion.
-
-* ``rollout_in_context(agent, suite, seed)`` — one episode per context of an ``EvalSuite``;
-* ``rollout_seeds(make_agent, suite, seeds)`` — the same for several episode seeds, concatenated;
-* ``suite_env(suite)`` — one vector env of a suite's tasks, to pass as ``env=`` to both: ``reset(seed=s)``
-  fixes every episode (the vector-env contract), so reusing one env gives the episodes fresh ones give,
-  without building it again (a Meta-World env starts worker processes: seconds, more than an episode);
-* ``episode_stats`` / ``summarize`` — mean ± sem over held-out tasks (``summarize`` adds the suite's
-  behavior and optimal/expert references).
-
-The context diagnostics (flipped / random labels, another task's context) are ``evaluation.diagnostics``.
+The paper's performance metric (section 6): the latent cumulative reward of an episode in an unseen task, the
+agent conditioned on a fixed offline context from that task (no parameter updates, no reward observed),
+averaged per task, then mean ± standard error over tasks. ``success`` (Meta-World Reach) is the share of
+episodes whose success flag was raised at some step, metaworld's criterion. ``suite_env`` builds one vector env
+of a suite's tasks to pass as ``env=``: ``reset(seed=s)`` fixes every episode, so reusing it gives the episodes
+a fresh one gives without starting Meta-World's worker processes again (seconds, more than an episode). The
+context diagnostics are ``evaluation.diagnostics``.
 """
 
 from __future__ import annotations

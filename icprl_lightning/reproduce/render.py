@@ -1,20 +1,13 @@
 """The documentation pages generated from the results: nothing in them is typed by hand.
 
 ``icprl reproduce --render`` reads every ``icprl evaluate`` JSON under ``docs/results/<table>/`` and writes
-
-* ``docs/results/<table>/<name>.md`` — the tables ``icprl evaluate`` (or ``icprl evaluate ad``: AD's learning curve,
-  whose columns are the first and last episodes) printed, rendered again from ``<name>.json``;
-* ``docs/results/<table>/summary.md`` — per JSON, per column (context quality or bandit context source), every
-  row's IQM and mean with stratified bootstrap 95% intervals over training seeds × held-out tasks
-  (``statistics``), each preference method's context diagnostics right below its own-context row, and the
-  probability of improvement between every two trained rows;
-* ``docs/results/darkroom_label_ceiling/summary.md`` — every reader's ceiling of each ``icprl analyze label-ceiling``
-  JSON there (``evaluation/label_ceiling.ceiling_page``);
-* ``docs/results/<table>/<table>_profile.png`` — the performance profile of the headline tables (``PROFILES``);
-* ``docs/results/index.md`` — every table folder that exists, its title, its files and its command;
-* ``docs/RESULTS.md`` — the claims table (``claims.py``: each claim of ``docs/claims.yaml`` names a JSON cell
-  pair) with the verdict per condition, then every number those verdicts read, then the index; the same short
-  claims table between the ``claims`` markers of ``README.md``.
+``<table>/<name>.md`` (the tables ``icprl evaluate`` or ``icprl evaluate ad`` printed, again from the JSON);
+``<table>/summary.md`` (per JSON and column, every row's IQM and mean with stratified bootstrap 95% intervals
+over training seeds × held-out tasks, ``statistics``; each method's context diagnostics below its row; the
+probability of improvement between every two trained rows); ``darkroom_label_ceiling/summary.md``
+(``label_ceiling.ceiling_page``); ``<table>/<table>_profile.png`` (``PROFILES``); ``docs/results/index.md``; and
+``docs/RESULTS.md`` (the claims table of ``claims.py`` with every number its verdicts read, then the index),
+with the short claims table between the ``claims`` markers of ``README.md``.
 
 A test renders everything again and fails when a committed page differs, so a number in the docs cannot
 drift from its JSON. The bootstrap draws from a fixed seed, so rendering twice gives the same bytes.
