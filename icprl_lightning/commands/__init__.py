@@ -26,10 +26,8 @@ other subcommands are plain argparse programs, each a ``main(argv)`` in its own 
 ``baseline`` and ``analyze`` are groups whose second word picks the program (``GROUPS``). This module imports
 none of them until one is asked for, so ``icprl --help`` answers without loading torch or Lightning.
 
-``analyze`` holds the measurements that stand beside the results tables rather than in them: each reads a
-checkpoint's or a dataset's insides (a reward model's labels, DIT's advantages, the labels' Bayes ceiling,
-the dataset bytes) with inputs and outputs of its own, where ``evaluate`` deploys agents on held-out tasks
-and always prints the same kind of table.
+``analyze`` holds the measurements beside the results tables: each reads a checkpoint's or a dataset's
+insides with inputs and outputs of its own, where ``evaluate`` deploys agents and prints one kind of table.
 
 A user's mistake (an unknown or mistyped key, a value out of range, a bad checkpoint or dataset, a model that
 does not fit the data) is one line on stderr, ``icprl <subcommand>: error: ...``, and exit status 2; the
