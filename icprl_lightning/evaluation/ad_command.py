@@ -216,10 +216,7 @@ def evaluate_ad(runs: Mapping[str, tuple[str, Sequence[str]]], episodes: int = 2
             per_checkpoint.append(np.mean(per_seed, axis=0))
         tasks = np.asarray(per_checkpoint)  # [checkpoints, goals, episodes]
         seed_curves = tasks.mean(1)  # [checkpoints, episodes]
-        if len(checkpoints) > 1:
-            mean, sem = _mean_sem(seed_curves)
-        else:
-            mean, sem = _mean_sem(tasks[0])
+        mean, sem = _mean_sem(seed_curves if len(checkpoints) > 1 else tasks[0])
         curves[name] = {"mean": mean, "sem": sem, "per_seed": seed_curves.tolist()}
         results[name] = {first: _cell(tasks[:, :, 0]), last: _cell(tasks[:, :, -1])}
     print(f"source learner ({type(learner).__name__}) from scratch, {episodes} episodes per goal", file=sys.stderr,
