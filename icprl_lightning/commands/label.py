@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import secrets
 import socket
 import sys
@@ -68,8 +69,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         uvicorn.Server(uvicorn.Config(app, log_level="warning")).run(sockets=[sock])
     finally:
-        import os
-
         os.close(lock)
     return 0
 

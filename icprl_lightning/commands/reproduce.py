@@ -54,8 +54,7 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"{table.name}: figures redrawn from {', '.join(map(str, sources))}", flush=True)
             return {}
         return reproduce(table, args.seeds, args.jobs, Path(args.work), Path(args.out) / table.name, args.refit,
-                         args.dry_run,
-                         args.threads, args.only)
+                         args.dry_run, args.threads, args.only)
     except (RecordError, TableError, WorkLocked) as e:
         parser.exit(2, f"{parser.prog}: error: {e}\n")
     except Interrupted as e:
