@@ -143,12 +143,9 @@ def resolve_pair_rule(rule: PairRule | str | None, action_spec: ActionSpec) -> P
 
 
 class OnlineAgent(Agent):
-    """An ``Agent`` whose context grows by one answered comparison per ``observe`` (module docstring).
-
-    ``context`` is the context observed so far (``StepPreferenceContext``, T ≥ 0 steps); ``cache`` its KV
-    cache, extended in place (with ``use_cache=False`` every output re-runs ``policy.forward`` instead:
-    the slow reference). ``greedy`` and ``seed`` act as in ``Agent``; the seed also drives the pair rule.
-    """
+    """An ``Agent`` whose context (T ≥ 0 steps so far) grows by one answered comparison per ``observe``, its KV
+    ``cache`` extended in place (``use_cache=False``: ``policy.forward`` each time, the slow reference). ``seed``
+    also drives the pair rule."""
 
     context: StepPreferenceContext | None
 
@@ -193,11 +190,8 @@ class OnlineAgent(Agent):
 
     @torch.no_grad()
     def reset(self, context: StepPreferenceContext | int) -> None:
-        """Start B tasks from an empty context (``context`` = B, an int) or from a given context.
-
-        A given context is validated as by ``Agent.reset`` and encoded at once, so that ``observe`` can
-        extend its cache.
-        """
+        """Start B tasks from an empty context (``context`` = B, an int) or from a given one (validated as by
+        ``Agent.reset`` and encoded at once, so that ``observe`` can extend its cache)."""
         if isinstance(context, bool) or not isinstance(context, int | StepPreferenceContext):
             raise ValueError(f"reset takes a batch size (int >= 1) or a StepPreferenceContext, got {context!r}")
         if isinstance(context, StepPreferenceContext):
@@ -235,11 +229,8 @@ class OnlineAgent(Agent):
 
     @torch.no_grad()
     def observe(self, obs: Tensor, first: Tensor, second: Tensor, labels: Tensor) -> None:
-        """Append the answered comparisons (obs [B, S], first, second, labels [B], 1 = first won): one token each.
-
-        The step is validated as one step of a ``StepPreferenceContext`` (a ``ValueError`` names the
-        field); a context already at the model's ``max_context`` is a ``ValueError`` and nothing changes.
-        """
+        """Append the answered comparisons (obs [B, S], first, second, labels [B], 1 = first won): one token each,
+        validated as one ``StepPreferenceContext`` step; past ``max_context`` a ``ValueError`` and nothing changes."""
         obs = self._check_obs(obs)
         limit = self.policy.transformer.max_context
         if self.length + 1 > limit:
