@@ -83,8 +83,7 @@ def linear_learner(name: str, family: LinearDuelingBanditFamily, n_problems: int
 
 
 @torch.no_grad()
-def agent_duels(agent: Agent, context: StepPreferenceContext, rng: np.random.Generator, batch_chunk: int = 32
-                ) -> Duels:
+def agent_duels(agent: Agent, context: StepPreferenceContext, rng: np.random.Generator, batch_chunk: int = 32) -> Duels:
     """First arm: the agent's action after D_{1:h}, h = 1..H (``act_each_prefix``); second uniform over the rest."""
     policy = agent.policy
     if policy.state_dim != 0 or not policy.action_spec.discrete:

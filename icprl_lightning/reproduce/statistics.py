@@ -130,10 +130,6 @@ def interval(scores: Scores, statistic: str = "iqm", reps: int = REPS, seed: int
     return Estimate(point, *_percentiles(STATISTICS[statistic](samples)))
 
 
-def _same_tasks(a: Scores, b: Scores) -> bool:
-    return a.tasks == b.tasks
-
-
 def difference(a: Scores, b: Scores, statistic: str = "mean", reps: int = REPS, seed: int = 0) -> Estimate:
     """``statistic(a) − statistic(b)``; with the same tasks both are resampled on the same tasks (paired)."""
     stat = STATISTICS[statistic]
@@ -141,9 +137,8 @@ def difference(a: Scores, b: Scores, statistic: str = "mean", reps: int = REPS, 
     if a.values.size == 1 and b.values.size == 1:
         return Estimate(point, point, point)
     rng = np.random.default_rng(seed)
-    if _same_tasks(a, b):
-        shared = _tasks(rng, reps, a.tasks, True)
-        index_a = index_b = shared
+    if a.tasks == b.tasks:
+        index_a = index_b = _tasks(rng, reps, a.tasks, True)
     else:
         index_a, index_b = _tasks(rng, reps, a.tasks, True), _tasks(rng, reps, b.tasks, True)
     replicates = stat(_resample(a.values, rng, reps, index_a)) - stat(_resample(b.values, rng, reps, index_b))
@@ -163,7 +158,7 @@ def probability_of_improvement(a: Scores, b: Scores, higher_is_better: bool = Tr
 
     ``higher_is_better=False`` (regret) compares the negated scores. Needs the same tasks in both.
     """
-    if not _same_tasks(a, b):
+    if a.tasks != b.tasks:
         raise ValueError(f"probability of improvement needs the same tasks: {a.tasks} vs {b.tasks}")
     sign = 1.0 if higher_is_better else -1.0
     x, y = sign * a.values, sign * b.values
