@@ -3,9 +3,8 @@ r"""RewardGen's reward quality on the held-out tasks, per context quality (``icp
     icprl analyze reward-quality --data-config configs/reward_gen_darkroom.yaml \
         --ckpt runs/icprl/<seed 0>/checkpoints/best.ckpt [--ckpt <seed 1> ...] [--json quality.json]
 
-Several ``--ckpt`` are training seeds of one RewardGen configuration (one ``pair_source``); each measure is
-averaged over the held-out pairs of a checkpoint, then reported as mean ± sem over the checkpoints. The
-three measures of R_ψ(s, a | ξ⁺, ξ⁻) (paper section 5.3, eq. (L_R^T)), per context quality:
+Several ``--ckpt`` are training seeds of one configuration (one ``pair_source``): mean ± sem over them of each
+measure's mean over held-out pairs. The measures of R_ψ(s, a | ξ⁺, ξ⁻) (paper section 5.3, eq. (L_R^T)):
 
 * ``other_pair_accuracy``: R_ψ conditioned on another pair of the same held-out task orders the scored
   pair as its label does (``held_out("pair_accuracy")``): the scored transitions are not in view, the fair test.
@@ -16,9 +15,8 @@ three measures of R_ψ(s, a | ξ⁺, ξ⁻) (paper section 5.3, eq. (L_R^T)), pe
   slot); an ``other_pair`` model was never trained on this form.
 * ``reward_correlation``: Pearson correlation, pooled over steps and tasks, of R_ψ's per-step labels r̂
   with the latent per-step rewards on the held-out unlabeled behavior trajectories, each labeled with its
-  evaluation pair as context (``InContextRewardModel.label``, as ICRG deploys; read by the same rule).
-  The latent rewards come from the ``RewardTrajectories`` dataset over the same trajectories
-  (``trajectory_data``).
+  evaluation pair as context (``InContextRewardModel.label``, as ICRG deploys; read by the same rule); the
+  latent rewards from the ``RewardTrajectories`` dataset over the same trajectories (``trajectory_data``).
 
 Chance accuracy is 0.5; tied returns carry coin-flip labels, so the ceiling is the manifest's label
 agreement (``eval_label_statistics`` in the JSON).
