@@ -28,12 +28,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 from icprl_lightning.checkpoints import load_module
 from icprl_lightning.contexts import TrajectoryPreferenceContext
-from icprl_lightning.evaluation.trajectory_data import tprl_datamodule
+from icprl_lightning.evaluation.trajectory_data import correlation, tprl_datamodule
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.methods.reward_gen import RewardGenModule
 from icprl_lightning.metrics import mean_sem_or_none
@@ -74,7 +73,7 @@ def label_correlation(model: RewardGenModule, context: TrajectoryPreferenceConte
     """Pearson correlation of r̂ on the behavior trajectories (labeled with their pair) with the latent rewards."""
     labels = torch.cat([model.reward.label(c, c.behavior_states, c.behavior_actions)
                         for c in (rows(context, start) for start in range(0, context.batch_size, ROWS))])
-    return float(np.corrcoef(labels.flatten().numpy(), rewards.flatten().numpy())[0, 1])
+    return correlation(labels, rewards)
 
 
 def evaluate(model: RewardGenModule, pairs: dict[str, ContextSamples],
