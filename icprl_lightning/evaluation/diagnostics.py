@@ -77,15 +77,11 @@ def diagnose(context: Any, diagnostic: str, task_index: np.ndarray, seed: int = 
     if diagnostic in ORDER_DIAGNOSTICS and not has_step_order(context):
         raise ValueError(f"{diagnostic} needs a context of steps ([row, step, ...] fields); "
                          f"{type(context).__name__} is not one")
-    if diagnostic == "flipped_labels":
-        return flipped_labels(context)
-    if diagnostic == "random_labels":
-        return random_labels(context, seed)
-    if diagnostic == "other_task":
-        return other_task(context, task_index)
-    if diagnostic == "shuffled_order":
-        return shuffled_order(context, seed)
-    return context
+    change = {"own": lambda: context, "flipped_labels": lambda: flipped_labels(context),
+              "random_labels": lambda: random_labels(context, seed),
+              "other_task": lambda: other_task(context, task_index),
+              "shuffled_order": lambda: shuffled_order(context, seed)}
+    return change[diagnostic]()
 
 
 def checked_contexts(contexts: Any) -> list[str]:
