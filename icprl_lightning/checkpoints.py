@@ -1,38 +1,23 @@
-"""Opening checkpoints safely and checking them for damage: the one reader of every ``.ckpt`` this package loads.
+"""Opening checkpoints safely and checking them for damage: the one reader of every ``.ckpt`` this package
+loads (docs/reliability.md). A checkpoint is untrusted input, so reading one never runs code from it:
 
-A checkpoint is untrusted input, so reading one never runs code from it:
+* ``torch.load(weights_only=True)`` only (our Lightning checkpoints are all plain: no ``add_safe_globals``);
+  any other global a pickle names (``os.system``, a ``__reduce__``) is refused before it is called.
+* The class comes from the method registry (``registry.py``) by the file's ``icprl_class_path``; a name
+  outside it is refused, never imported. The module is built here from ``hyper_parameters`` and
+  ``state_dict``, not ``load_from_checkpoint`` (whose hyperparameters may name an instantiator to import).
+* ``icprl_sha256`` (``stamp``): SHA-256 over class path, hyperparameters (sorted JSON) and every
+  ``state_dict`` tensor, recomputed on reading, so a flipped bit is an error, not a different policy.
+* ``icprl_seal``: one SHA-256 per top-level entry (optimizer, loops, callbacks, RNG states, ...), the last
+  step of Lightning's ``dump_checkpoint``, so what a resume restores is covered and a damaged part named.
+* Every floating tensor of the weights and optimizer state must be finite (a NaN moment resumes all-NaN).
 
-* ``torch.load(weights_only=True)`` only: tensors, containers, numbers and strings unpickle; any other
-  global a pickle names (``os.system``, a class's ``__reduce__``) is refused before it is called. Our
-  Lightning checkpoints need nothing more (``epoch``, ``state_dict``, ``loops``, ``optimizer_states``,
-  ``hyper_parameters``... are all plain), so no ``add_safe_globals`` is used.
-* The class to build comes from the method registry (``registry.py``: this package's methods and those a user
-  registered), looked up by the ``icprl_class_path`` the file names; a name outside it is refused, never
-  imported. The module is built here from the file's ``hyper_parameters`` and ``state_dict`` (not
-  ``load_from_checkpoint``, whose hyperparameters may name an instantiator to import).
-* ``on_save_checkpoint`` stores ``icprl_sha256``: SHA-256 over the class path, the hyperparameters (as
-  sorted JSON) and every ``state_dict`` tensor (sorted by name: name, dtype, shape, bytes). Reading
-  recomputes it, so a flipped bit in a weight is an error, not a silently different policy.
-* It also stores ``icprl_seal``: one SHA-256 per top-level entry of the whole checkpoint (optimizer and
-  scheduler states, loops, callbacks and their RNG states, ...), computed as the last step of Lightning's
-  ``dump_checkpoint``, so what a resume restores is covered too, and a damaged part is named.
-* Every floating tensor of the weights and the optimizer state must be finite: a NaN moment would resume
-  into an all-NaN model.
-
-Hyperparameters are read through ``hyperparameters``, which gathers the keys that earlier versions saved flat into
-the groups every method now takes (``models/config.py``): the sizes (``n_layer``, ``n_embd``, ``n_head``,
-``dropout``, also inside ICRG's ``reward_gen_hparams`` and ``cross_fit_hparams``) into ``backbone``, the optimizer's
-(``lr``, ``weight_decay``, ``lr_schedule``, ``warmup_steps``) into ``optimizer``. It returns a new
-dict after the checks above and never changes the file's own entries, so the checksum and the seal still cover
-exactly what was saved.
-
-``checkpoint_for_lightning`` is the one door through which the CLI hands Lightning a ``ckpt_path``: it
-checks the parsed path (however it was spelled), verifies the file as above and gives Lightning a private
-copy of exactly the verified contents, so Lightning never unpickles a file this module has not read.
-
-A file saved before the checksum existed is refused, with the way out in the message: for a file you
-trust, ``icprl checkpoint stamp PATH`` adds the checksum (it loads the file as safely
-as any other read; the stamp only vouches that the file has not changed since).
+``hyperparameters`` gathers the flat keys earlier versions saved into the groups every method now takes
+(``models/config.py``): the sizes (also inside ICRG's ``reward_gen_hparams`` / ``cross_fit_hparams``) into
+``backbone``, ``lr``, ``weight_decay``, ``lr_schedule``, ``warmup_steps`` into ``optimizer``, in a new dict; the
+file's entries, which the checksum and seal cover, never change. ``checkpoint_for_lightning`` is the CLI's one door
+to Lightning's ``ckpt_path``: Lightning loads a private copy of exactly the verified contents. A file saved before
+the checksum existed is refused; for a file you trust, ``icprl checkpoint stamp PATH`` adds it.
 """
 
 from __future__ import annotations
@@ -308,16 +293,11 @@ def _private_copy(ckpt: dict[str, Any], name: str) -> str:
 
 
 def checkpoint_for_lightning(ckpt_path: Any, subcommand: str) -> str:
-    """The ``ckpt_path`` that ``icprl fit/validate/test/predict`` parsed, checked and verified; the path of a
-    private copy of its verified contents, which is what Lightning then loads.
-
-    Called on the parsed config, so it sees the path however it was given (``--ckpt_path``, an abbreviation,
-    ``-c``/``--config`` files at either level, inline YAML). Only a local file is accepted: URLs and other
-    remote paths (which Lightning would fetch and unpickle) and Lightning's special values (``best``, ``last``,
-    ``hpc``, ``registry``: resolved by the Trainer, outside this check) are refused. ``fit`` resumes the whole
-    training state, so it needs the file's seal (``verify(require_seal=True)``); the other subcommands restore
-    the weights only, and get a copy holding just the verified module. The module is built once, so a file
-    that does not rebuild fails here, in one line.
+    """The parsed ``ckpt_path`` of ``icprl fit/validate/test/predict`` (however it was spelled), verified; the
+    path of a private copy of its verified contents, which Lightning then loads. Only a local file: remote
+    paths (Lightning would fetch and unpickle them) and Lightning's special values (``best``, ``last``, ``hpc``,
+    ``registry``) are refused. ``fit`` resumes everything, so it needs the seal; the other subcommands get a
+    copy holding just the verified module. The module is built once, so a file that does not rebuild fails here.
     """
     if not isinstance(ckpt_path, (str, os.PathLike)):
         raise ValueError(f"ckpt_path must be a path to a .ckpt file, got {ckpt_path!r}")
@@ -340,12 +320,8 @@ def checkpoint_for_lightning(ckpt_path: Any, subcommand: str) -> str:
 
 
 def stamp_file(path: str | Path) -> str:
-    """Add the checksum and the seal to a trusted checkpoint saved before they existed (atomic rewrite in the
-    same directory); returns the checksum.
-
-    The file is read as safely as any other, must name an allowed class and must rebuild; a checksum or seal
-    it already has is checked, never replaced.
-    """
+    """Add the checksum and seal to a trusted checkpoint saved before they existed (atomic rewrite); returns
+    the checksum. Read as safely as any other; it must rebuild; a checksum or seal it has is checked, never replaced."""
     path = Path(path)
     ckpt = load_raw(path)
     changed = CHECKSUM_KEY not in ckpt or SEAL_KEY not in ckpt

@@ -14,24 +14,15 @@ only for the DIT oracle baseline and RewardGen's estimates r̂ in ICRG), no goal
 Actions are ``int64`` indices of shape ``[B, T]`` for discrete action spaces and ``float32`` vectors of
 shape ``[B, T, A]`` for continuous ones.
 
-``validate(state_dim, action_spec)`` checks every field and returns the context *normalized* (a new
-object; the argument is unchanged); ``Agent.reset`` uses what it returns. Anything it cannot take as
-meant is a ``ValueError`` naming the field, the expected shape/dtype/range and what was given:
-
-* shapes: ``B ≥ 1`` contexts of ``T ≥ 1`` steps (an empty context would put the query at a position
-  the model never saw), every field's shape as documented on each class;
-* states, rewards and continuous actions: floating tensors (float16/bfloat16/float64 are converted to
-  float32, the model's dtype; integer and bool refused), every value finite — NaN, ±inf and float64
-  values beyond float32's range are refused;
-* discrete actions: integer tensors (any integer dtype, converted to int64) holding indices in
-  ``[0, n)``; float and bool refused (a bool action tensor is ambiguous);
-* ``preferred``: exactly 0 or 1 — int, float (0.0/1.0) or bool labels — returned as float32 (how
-  batches serve them); 2, −1, 0.5 or NaN are refused, never thresholded.
-
-Non-tensor inputs: a ``numpy.ndarray`` of a numeric dtype is converted (copied) and then follows the
-same rules; anything else (lists, scalars, None, object arrays) is refused — a nested list has no
-definite dtype. ``data/schema.py`` applies the same value rules (and dtypes, row and step counts,
-magnitudes) to a dataset's memory-mapped arrays, once, when a DataModule loads them.
+``validate(state_dim, action_spec)`` returns the context *normalized* (a new object), which ``Agent.reset``
+uses; anything it cannot take as meant is a ``ValueError`` naming the field, the expected shape/dtype/range
+and what was given: ``B ≥ 1`` contexts of ``T ≥ 1`` steps (an empty context would put the query at a position
+the model never saw); states, rewards and continuous actions floating (float16/bfloat16/float64 converted to
+float32; integer and bool refused) and finite (float64 beyond float32's range counts as inf); discrete
+actions integer (converted to int64) in ``[0, n)`` (bool refused: ambiguous); ``preferred`` exactly 0 or 1
+(int, float or bool; returned float32; 2, −1, 0.5 or NaN refused, never thresholded). A numeric
+``numpy.ndarray`` is converted, anything else (lists, scalars, None) refused. ``data/schema.py`` applies
+the same value rules to a dataset's memory-mapped arrays when a DataModule loads them.
 """
 
 from __future__ import annotations
@@ -56,19 +47,13 @@ class ActionSpec:
             return torch.nn.functional.one_hot(actions.long(), self.size).float()
         return actions.float()
 
-    def describe(self, lead: str) -> str:
-        return f"[{lead}] int64" if self.discrete else f"[{lead}, {self.size}] float32"
-
 
 _UNSIGNED = (torch.uint16, torch.uint32, torch.uint64)  # "shell" dtypes: few ops; converted to int64 first
 
 
 def as_tensor(name: str, x, expected: str) -> Tensor:
-    """``x`` as a tensor: tensors as they are, numpy arrays of a numeric dtype converted (copied).
-
-    Anything else (lists, scalars, None, object or string arrays) is refused: a nested list has no
-    definite dtype or shape, so the rules below could not say what it was meant to be.
-    """
+    """``x`` as a tensor: tensors as they are, numeric numpy arrays converted (copied); anything else refused
+    (a nested list has no definite dtype or shape)."""
     if isinstance(x, Tensor):
         return x
     if isinstance(x, np.ndarray):
@@ -144,15 +129,16 @@ def _check_actions(name: str, x, b: int, t: int, spec: ActionSpec) -> Tensor:
     return y
 
 
-def _check_steps(name: str, x: Tensor, axis: str = "T") -> tuple[int, int]:
-    """The batch size and the number of steps of a context's first field: both at least 1."""
+def _check_states(name: str, x, state_dim: int, axis: str = "T") -> tuple[Tensor, int, int]:
+    """A context's first field [B, T, S] as float32, with its batch size and number of steps: both at least 1."""
+    x = check_floats(name, x, (None, None, state_dim), f"[B, {axis}, S={state_dim}] float32")
     b, t = x.shape[:2]
     if b == 0:
         raise ValueError(f"{name} holds no contexts (B = 0, shape {list(x.shape)}): a batch needs at least one")
     if t == 0:
         raise ValueError(f"{name} holds an empty context ({axis} = 0, shape {list(x.shape)}): a context needs at "
                          "least one step (the query would sit at a position the model never saw)")
-    return b, t
+    return x, b, t
 
 
 class _Context:
@@ -179,8 +165,7 @@ class StepPreferenceContext(_Context):
     preferred: Tensor    # [B, T] in {0, 1}
 
     def validate(self, state_dim: int, action_spec: ActionSpec) -> StepPreferenceContext:
-        states = check_floats("states", self.states, (None, None, state_dim), f"[B, T, S={state_dim}] float32")
-        b, t = _check_steps("states", states)
+        states, b, t = _check_states("states", self.states, state_dim)
         return StepPreferenceContext(
             states, _check_actions("actions", self.actions, b, t, action_spec),
             _check_actions("alt_actions", self.alt_actions, b, t, action_spec),
@@ -197,8 +182,7 @@ class RewardContext(_Context):
     next_states: Tensor  # [B, T, S]
 
     def validate(self, state_dim: int, action_spec: ActionSpec) -> RewardContext:
-        states = check_floats("states", self.states, (None, None, state_dim), f"[B, T, S={state_dim}] float32")
-        b, t = _check_steps("states", states)
+        states, b, t = _check_states("states", self.states, state_dim)
         return RewardContext(
             states, _check_actions("actions", self.actions, b, t, action_spec),
             check_floats("rewards", self.rewards, (b, t), f"[B={b}, T={t}] float32"),
@@ -228,8 +212,7 @@ class TrajectoryPreferenceContext(_Context):
         return self.states_a
 
     def validate(self, state_dim: int, action_spec: ActionSpec) -> TrajectoryPreferenceContext:
-        states_a = check_floats("states_a", self.states_a, (None, None, state_dim), f"[B, H, S={state_dim}] float32")
-        b, h = _check_steps("states_a", states_a, "H")
+        states_a, b, h = _check_states("states_a", self.states_a, state_dim, "H")
         out = dict(
             states_a=states_a, actions_a=_check_actions("actions_a", self.actions_a, b, h, action_spec),
             states_b=check_floats("states_b", self.states_b, (b, h, state_dim),
@@ -241,7 +224,7 @@ class TrajectoryPreferenceContext(_Context):
         if self.behavior_states is not None:
             states = check_floats("behavior_states", self.behavior_states, (b, None, state_dim),
                                   f"[B={b}, T, S={state_dim}] float32")
-            _, t = _check_steps("behavior_states", states)
+            states, _, t = _check_states("behavior_states", states, state_dim)
             out.update(behavior_states=states,
                        behavior_actions=_check_actions("behavior_actions", self.behavior_actions, b, t, action_spec))
         return TrajectoryPreferenceContext(**out)
@@ -256,8 +239,7 @@ class RewardTrajectoryContext(_Context):
     rewards: Tensor  # [B, T]
 
     def validate(self, state_dim: int, action_spec: ActionSpec) -> RewardTrajectoryContext:
-        states = check_floats("states", self.states, (None, None, state_dim), f"[B, T, S={state_dim}] float32")
-        b, t = _check_steps("states", states)
+        states, b, t = _check_states("states", self.states, state_dim)
         return RewardTrajectoryContext(
             states, _check_actions("actions", self.actions, b, t, action_spec),
             check_floats("rewards", self.rewards, (b, t), f"[B={b}, T={t}] float32"))

@@ -8,24 +8,18 @@
     action = agent.act(obs)                           # obs [B, S] -> [B] (discrete) | [B, A]
     actions = agent.act_each_prefix(obs)              # obs [B, S] -> [B, T] | [B, T, A]: after D_{1:h}, h = 1..T
 
-``obs_dim`` (S), ``action_spec`` (discrete with ``size`` choices, or a continuous vector of ``size``),
-``max_context`` (the most context steps ``reset`` accepts) and ``context_kind`` / ``context_type`` (the
-context class ``reset`` takes) say what a checkpoint expects, so a script need not guess them.
-``reset`` validates the context; the first ``act`` encodes it once into a KV cache and each ``act`` runs
-only the query token against it (paper, "DP²T Deployment" / "ICPO Deployment", with D fixed).
-``act_each_prefix`` answers "what would the agent do after only the first h comparisons?" for every h at
-once — the dueling-bandit evaluation's question (weak regret vs context size) — with one forward pass in
-which query h sees the first h context tokens (the training mask); it never builds the cache.
+``obs_dim`` (S), ``action_spec``, ``max_context`` and ``context_kind`` / ``context_type`` say what a
+checkpoint expects. The first ``act`` encodes the context once into a KV cache; each ``act`` runs only the
+query token (paper, "DP²T Deployment" / "ICPO Deployment", D fixed). ``act_each_prefix`` (the
+dueling-bandit evaluation's question: weak regret vs context size) is one forward pass where query h sees
+the first h context tokens (the training mask), without the cache.
 
-DPT, DP²T and ICPO act with the argmax of T_θ(· | s_h, D) by default (DIT and ICRG sample); ``greedy=False``
-samples a_h ~ T_θ(· | s_h, D) as the paper's text writes it. Greedy is their default because ICPO's
-policy is only as sharp as its β makes it: for λ = 1 the optimum is T ∝ exp(A*/(β τ)) (τ the label
-temperature), about softmax(A*) at β = τ = 1, whose samples are noisy where advantages differ by 1–2
-(DarkRoom); a smaller β samples almost as well as the mode (``icprl reproduce darkroom_lambda_beta``).
-Continuous actions are the policy mean. Wrong shapes, dtypes or values (labels outside {0, 1}, NaN/inf,
-an empty context, bool or out-of-range actions) raise ``ValueError`` naming the field and what it expects;
-float64 inputs are converted to float32 (``contexts.py`` lists the rules). Calling ``act`` before
-``reset`` is a ``RuntimeError``, as is a policy output that is not finite.
+DPT, DP²T and ICPO act greedily by default (DIT and ICRG sample; ``greedy=False`` samples a_h ~ T_θ as the
+paper writes it): for λ = 1 ICPO's optimum is T ∝ exp(A*/(β τ)), about softmax(A*) at β = τ = 1, whose
+samples are noisy where advantages differ by 1–2 (DarkRoom); a smaller β samples almost as well as the mode
+(``icprl reproduce darkroom_lambda_beta``). Continuous actions are the policy mean. Invalid inputs raise
+``ValueError`` naming the field (``contexts.py`` lists the rules); ``act`` before ``reset``, or a
+non-finite policy output, is a ``RuntimeError``.
 """
 
 from __future__ import annotations
@@ -102,12 +96,8 @@ class Agent:
 
     @torch.no_grad()
     def reset(self, context: Context) -> None:
-        """Condition on a new batch of contexts (encoded once, at the first ``act``).
-
-        The context is validated and normalized (``contexts.py``: dtypes converted where lossless, invalid
-        values refused with a ``ValueError`` naming the field). A failed reset leaves the agent without a
-        context, so a later ``act`` cannot silently use the previous one.
-        """
+        """Condition on a new batch of contexts (validated by ``contexts.py``; encoded at the first ``act``).
+        A failed reset leaves no context, so a later ``act`` cannot silently use the previous one."""
         self.context, self.cache = None, None
         if not isinstance(context, self.context_type):
             raise ValueError(f"this agent takes a {self.context_type.__name__}, got {type(context).__name__}")
@@ -132,14 +122,8 @@ class Agent:
 
     @torch.no_grad()
     def act_each_prefix(self, obs: Tensor, batch_chunk: int = 32) -> Tensor:
-        """The action at ``obs`` after each prefix D_{1:h} of the context, h = 1..T.
-
-        obs [B, S] float -> [B, T] int64 (discrete) or [B, T, A] float (continuous); column h − 1 is
-        conditioned on the first h context steps only, so column T − 1 is ``act(obs)`` on the whole
-        context (the same action when greedy; a draw from the same distribution when sampling). One
-        forward pass per ``batch_chunk`` rows of the batch (each pass attends over 2T tokens, so the
-        chunk bounds memory); the KV cache is neither used nor changed.
-        """
+        """obs [B, S] -> actions [B, T] | [B, T, A]: column h − 1 conditioned on D_{1:h} only (column T − 1 is
+        ``act(obs)``). One forward pass of 2T tokens per ``batch_chunk`` rows (bounds memory); no KV cache."""
         obs = self._check_obs(obs)
         if isinstance(batch_chunk, bool) or not isinstance(batch_chunk, int) or batch_chunk < 1:
             raise ValueError(f"batch_chunk must be an int >= 1, got {batch_chunk!r}")
@@ -167,11 +151,8 @@ class Agent:
         return check_floats("obs", obs, (b, s), expected).to(self.device)
 
     def _choose(self, out: Tensor) -> Tensor:
-        """Logits or means (..., A) -> actions: the mean (continuous), argmax or a sample (discrete).
-
-        Finite inputs of huge magnitude can overflow the network; a non-finite output is an error, never
-        a NaN action or an arbitrary argmax.
-        """
+        """Logits or means (..., A) -> actions: the mean (continuous), argmax or a sample (discrete). A
+        non-finite output (huge inputs overflow the network) is an error, never a NaN action or arbitrary argmax."""
         if not torch.isfinite(out).all():
             rows = int((~torch.isfinite(out)).flatten(1).any(1).sum()) if out.dim() > 1 else 1
             raise RuntimeError(f"the policy's output is not finite (NaN or inf) for {rows} of {out.shape[0]} rows: "
@@ -187,18 +168,11 @@ class Agent:
 
 def load_agent(checkpoint: str | Path, greedy: bool | None = None, use_cache: bool = True, seed: int | None = None,
                map_location: str | torch.device = "cpu", compile: bool = False):
-    """Load any icprl_lightning method's checkpoint as a deployable agent.
-
-    ``checkpoint`` is a ``.ckpt`` file, a model directory in the Hugging Face layout (``icprl export``), or the
-    short name of a model shipped with the package (``"bandit-icpo"``; ``hub.shipped_models()`` lists them).
-    ``greedy`` None keeps the method's own default (argmax / Gaussian mean for DPT, DP²T and ICPO;
-    sampling for ICRG, whose advantage-weighted policy collapses at its argmax); True or False forces it.
-    Either is read as untrusted (``checkpoints.py``, ``hub.py``): a ``.ckpt`` with ``weights_only=True``, a
-    directory's tensors with ``safetensors``; the class from the allow-list of this package's methods, the stored
-    checksums verified; any problem is one ``ValueError`` (or ``FileNotFoundError``) naming the path.
-    ``compile`` runs each act()'s query step through ``torch.compile`` (``Agent``): worth its one-time compile
-    for many episodes of small models.
-    """
+    """Any method's ``.ckpt``, exported model directory (``icprl export``) or shipped model name
+    (``hub.shipped_models()``) as a deployable agent. ``greedy`` None keeps the method's default (ICRG samples:
+    its advantage-weighted policy collapses at its argmax). Read as untrusted (``checkpoints.py``, ``hub.py``:
+    ``weights_only=True`` / ``safetensors``, allow-listed class, checksums verified); any problem is one
+    ``ValueError`` (or ``FileNotFoundError``) naming the path. ``compile``: see ``Agent``."""
     from icprl_lightning.hub import load_model
 
     module = load_model(checkpoint, map_location=map_location)

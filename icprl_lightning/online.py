@@ -1,49 +1,19 @@
 """Online deployment with preference queries (DESIGN.md: "an online agent appends each answered comparison
-as one token").
+as one token"; docs/deployment.md walks through it).
 
-The agent starts from an empty (or a small) I-PRL context D^I for B tasks and, at each step h, at its
-current state s_h:
+At each step h the agent proposes a pair (a_h, a'_h) from T_θ(· | s_h, D_{<h}) by its pair rule
+(``propose``), an annotator ``label(states [B, S], first, second) -> labels [B]`` answers y_h (1 = first
+won), and ``observe`` appends (s_h, a_h, a'_h, y_h) as one new token into the KV cache
+(``CausalTransformer.extend``), never re-encoding earlier comparisons. Outputs then equal ``policy.forward``
+on the grown context (tests/deploy/test_online_agent.py). Every ``StepPreferenceContext`` model deploys
+online, the dueling-bandit ICPO too (``obs = torch.zeros(B, 0)``); other context kinds are refused. With an
+empty context the query takes position 0, which training never scores, so the first proposal of an
+empty-start agent is the model's uninformed prior.
 
-1. proposes a pair (a_h, a'_h) from T_θ(· | s_h, D_{<h}) by its pair rule (``propose``);
-2. an annotator answers y_h ∈ {0, 1} (1 = the first action won) — any callable
-   ``label(states [B, S], first, second) -> labels [B]``;
-3. appends (s_h, a_h, a'_h, y_h) to its context (``observe``): one new token through the transformer into
-   the KV cache (``CausalTransformer.extend``), never re-encoding the earlier comparisons.
-
-    from icprl_lightning.online import OnlineAgent
-    agent = OnlineAgent.load("run/checkpoints/last.ckpt", seed=0)
-    agent.reset(batch_size=B)                          # or agent.reset(initial_context)
-    first, second = agent.propose(obs)                 # obs [B, S]
-    agent.observe(obs, first, second, label(obs, first, second))
-    action = agent.act(obs)                            # as Agent.act, on everything observed so far
-
-Every model whose context is a ``StepPreferenceContext`` deploys online: the I-PRL methods (DP²T, ICPO
-on step preferences) and the dueling-bandit ICPO, whose contexts are step preferences with states of
-shape [B, T, 0] (``data/settings/bandit_duels.py``; pass ``obs = torch.zeros(B, 0)``). Other context
-kinds (reward contexts, T-PRL pairs, reward trajectories) are refused.
-
-After any number of ``observe`` calls the agent's outputs equal those of ``policy.encode`` + ``query``
-on the grown context, and of ``policy.forward`` with the whole context visible (tests/deploy/test_online_agent.py).
-With an empty context the query takes position 0, a position training never scores (ICPO queries see
-1..H comparisons), so the first proposal of an empty-start agent is the model's uninformed prior.
-
-Pair rules (``pair_rule``; any callable ``rule(agent, outputs [B, A]) -> (first, second)`` plugs in, e.g.
-an active-query rule):
-
-* ``ActionAndUniform`` (default; the rule of the offline bandit evaluation, ``evaluation/duels.py``): the
-  first action is the agent's own action (argmax or a sample of T_θ for discrete actions, as ``act``; the
-  mean for continuous ones), the second uniform over the *other* discrete actions, or uniform on the
-  action box [-1, 1]^A.
-* ``TopTwo`` (discrete only; an active rule): the model's two most likely actions, most likely first — the
-  comparison whose answer the model is least sure of among the actions it would take.
-* ``SampledPair`` (discrete only; an active rule in the spirit of double Thompson sampling): two distinct
-  actions drawn from T_θ, the second from T_θ renormalized without the first.
-* ``UniformPair`` (the passive reference): two distinct actions uniform at random (discrete), or two
-  uniform points of the action box (continuous); the model's outputs are not used.
-
-``PAIR_RULES`` names them: ``pair_rule`` also takes a name (``"top_two"``), resolved when the agent is built
-(and whenever ``pair_rule`` is set), as is whether the rule fits the model's actions, so an unknown name or a
-discrete-only rule on continuous actions is one ``ValueError`` before the first ``propose``.
+Pair rules (``PAIR_RULES``, or any callable ``rule(agent, outputs [B, A]) -> (first, second)``):
+``ActionAndUniform`` (default, as ``evaluation/duels.py``), ``TopTwo`` and ``SampledPair`` (active,
+discrete only), ``UniformPair`` (the passive reference). A name or a discrete-only rule on continuous actions
+is checked when the rule is set: one ``ValueError`` before the first ``propose``.
 """
 
 from __future__ import annotations
@@ -173,12 +143,9 @@ def resolve_pair_rule(rule: PairRule | str | None, action_spec: ActionSpec) -> P
 
 
 class OnlineAgent(Agent):
-    """An ``Agent`` whose context grows by one answered comparison per ``observe`` (module docstring).
-
-    ``context`` is the context observed so far (``StepPreferenceContext``, T ≥ 0 steps); ``cache`` its KV
-    cache, extended in place (with ``use_cache=False`` every output re-runs ``policy.forward`` instead:
-    the slow reference). ``greedy`` and ``seed`` act as in ``Agent``; the seed also drives the pair rule.
-    """
+    """An ``Agent`` whose context (T ≥ 0 steps so far) grows by one answered comparison per ``observe``, its KV
+    ``cache`` extended in place (``use_cache=False``: ``policy.forward`` each time, the slow reference). ``seed``
+    also drives the pair rule."""
 
     context: StepPreferenceContext | None
 
@@ -223,11 +190,8 @@ class OnlineAgent(Agent):
 
     @torch.no_grad()
     def reset(self, context: StepPreferenceContext | int) -> None:
-        """Start B tasks from an empty context (``context`` = B, an int) or from a given context.
-
-        A given context is validated as by ``Agent.reset`` and encoded at once, so that ``observe`` can
-        extend its cache.
-        """
+        """Start B tasks from an empty context (``context`` = B, an int) or from a given one (validated as by
+        ``Agent.reset`` and encoded at once, so that ``observe`` can extend its cache)."""
         if isinstance(context, bool) or not isinstance(context, int | StepPreferenceContext):
             raise ValueError(f"reset takes a batch size (int >= 1) or a StepPreferenceContext, got {context!r}")
         if isinstance(context, StepPreferenceContext):
@@ -265,11 +229,8 @@ class OnlineAgent(Agent):
 
     @torch.no_grad()
     def observe(self, obs: Tensor, first: Tensor, second: Tensor, labels: Tensor) -> None:
-        """Append the answered comparisons (obs [B, S], first, second, labels [B], 1 = first won): one token each.
-
-        The step is validated as one step of a ``StepPreferenceContext`` (a ``ValueError`` names the
-        field); a context already at the model's ``max_context`` is a ``ValueError`` and nothing changes.
-        """
+        """Append the answered comparisons (obs [B, S], first, second, labels [B], 1 = first won): one token each,
+        validated as one ``StepPreferenceContext`` step; past ``max_context`` a ``ValueError`` and nothing changes."""
         obs = self._check_obs(obs)
         limit = self.policy.transformer.max_context
         if self.length + 1 > limit:

@@ -1,17 +1,12 @@
 """Typed training samples: what one batch of a DataModule holds, as NamedTuples with documented shapes.
 
-Stable-Baselines3's ``ReplayBufferSamples`` habit: ``data/batches.py`` builds them from the stored rows, and the
-methods and their losses read them by attribute (``batch.context``, ``batch.pair``). A field the data does not
-serve is None. Lightning moves a batch to the device as a whole: it maps over a NamedTuple's fields, and a typed
-context moves itself (``contexts._Context.to``).
+Stable-Baselines3's ``ReplayBufferSamples`` habit: ``data/batches.py`` builds them from the stored rows; methods
+and losses read them by attribute (``batch.context``). A field the data does not serve is None. Lightning moves a
+batch as a whole (it maps over a NamedTuple's fields; a typed context moves itself, ``contexts._Context.to``).
 
 Sizes: B contexts per batch, T steps per context (H, a trajectory's length, for T-PRL pairs and reward
-trajectories), S the state size, A the action dimension of continuous actions. Discrete actions are int64 indices
-[B, T]; continuous ones float32 [B, T, A]. Every tensor is on the same device.
-
-* ``ContextSamples``: B stored contexts of one kind (``step_preference``, ``reward``, ``trajectory_preference``)
-  with what a loss scores against them (DPT, DP²T, ICPO, RewardGen, ICRG).
-* ``RewardTrajectorySamples``: B pairs of reward-labeled trajectories of one task (DIT on true rewards).
+trajectories), S the state size, A the action dimension. Discrete actions are int64 [B, T]; continuous float32
+[B, T, A]. Every tensor is on the same device.
 """
 
 from __future__ import annotations

@@ -26,10 +26,8 @@ other subcommands are plain argparse programs, each a ``main(argv)`` in its own 
 ``baseline`` and ``analyze`` are groups whose second word picks the program (``GROUPS``). This module imports
 none of them until one is asked for, so ``icprl --help`` answers without loading torch or Lightning.
 
-``analyze`` holds the measurements that stand beside the results tables rather than in them: each reads a
-checkpoint's or a dataset's insides (a reward model's labels, DIT's advantages, the labels' Bayes ceiling,
-the dataset bytes) with inputs and outputs of its own, where ``evaluate`` deploys agents on held-out tasks
-and always prints the same kind of table.
+``analyze`` holds the measurements beside the results tables: each reads a checkpoint's or a dataset's
+insides with inputs and outputs of its own, where ``evaluate`` deploys agents and prints one kind of table.
 
 A user's mistake (an unknown or mistyped key, a value out of range, a bad checkpoint or dataset, a model that
 does not fit the data) is one line on stderr, ``icprl <subcommand>: error: ...``, and exit status 2; the
@@ -39,72 +37,109 @@ Lightning's hardware banner and the model summary of a fit.
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import os
 import sys
-from typing import NoReturn
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NoReturn
 
 from icprl_lightning.commands.config_hints import config_problem
 
-# name -> (module, function, one line of help); an empty module means the LightningCLI (``commands/trainer.py``) or,
-# for a name of GROUPS, the program its second word names
-SUBCOMMANDS: dict[str, tuple[str, str, str]] = {
-    "fit": ("", "", "train a method (generates its dataset first if missing)"),
-    "validate": ("", "", "one validation epoch of a checkpoint"),
-    "test": ("", "", "one test epoch of a checkpoint"),
-    "predict": ("", "", "predictions of a checkpoint"),
-    "generate": ("", "", "only build a config's dataset"),
-    "evaluate": ("icprl_lightning.commands.evaluate", "main",
-                 "deploy checkpoints on held-out tasks, with the context diagnostics"),
-    "reproduce": ("icprl_lightning.commands.reproduce", "main", "train and evaluate every run of a results table"),
-    "import": ("icprl_lightning.commands.import_data", "main",
+# name -> (module, one line of help); each module has a main(argv). An empty module means the LightningCLI
+# (``commands/trainer.py``) or, for a name of GROUPS, the program its second word names
+_C = "icprl_lightning.commands."
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "fit": ("", "train a method (generates its dataset first if missing)"),
+    "validate": ("", "one validation epoch of a checkpoint"),
+    "test": ("", "one test epoch of a checkpoint"),
+    "predict": ("", "predictions of a checkpoint"),
+    "generate": ("", "only build a config's dataset"),
+    "evaluate": (_C + "evaluate", "deploy checkpoints on held-out tasks, with the context diagnostics"),
+    "reproduce": (_C + "reproduce", "train and evaluate every run of a results table"),
+    "import": (_C + "import_data",
                "import recorded preference data (npz, HF datasets, Parquet, Minari, TRL rows, B-Pref labels)"),
-    "export-data": ("icprl_lightning.commands.export_data", "main",
-                    "write a dataset as Hugging Face datasets (Arrow), Parquet or Minari"),
-    "report": ("icprl_lightning.commands.report", "main",
-               "a run's learning curves and last held-out table, from its directory, no server needed"),
-    "checkpoint": ("icprl_lightning.commands.checkpoint", "main", "verify checkpoints, or stamp trusted old ones"),
-    "export": ("icprl_lightning.commands.export", "main", "write a checkpoint as a Hugging Face-style model directory"),
-    "oracle": ("", "", "train the Meta-World Reach SAC oracle, or export its weights for data generation"),
-    "baseline": ("", "", "RL from scratch per held-out task (SAC, DQN); tuning of the dueling-bandit baselines"),
-    "analyze": ("", "", "measurements beside the tables: reward models, DIT's advantages, label ceiling, checksums"),
-    "label": ("icprl_lightning.commands.label", "main",
-              "a labelling page in the browser for people's preferences, and its answers' export"),
+    "export-data": (_C + "export_data", "write a dataset as Hugging Face datasets (Arrow), Parquet or Minari"),
+    "report": (_C + "report", "a run's learning curves and last held-out table, from its directory, no server needed"),
+    "checkpoint": (_C + "checkpoint", "verify checkpoints, or stamp trusted old ones"),
+    "export": (_C + "export", "write a checkpoint as a Hugging Face-style model directory"),
+    "oracle": ("", "train the Meta-World Reach SAC oracle, or export its weights for data generation"),
+    "baseline": ("", "RL from scratch per held-out task (SAC, DQN); tuning of the dueling-bandit baselines"),
+    "analyze": ("", "measurements beside the tables: reward models, DIT's advantages, label ceiling, checksums"),
+    "label": (_C + "label", "a labelling page in the browser for people's preferences, and its answers' export"),
 }
-# group -> verb -> (module, function, one line of help)
-GROUPS: dict[str, dict[str, tuple[str, str, str]]] = {
+# group -> verb -> (module, one line of help)
+GROUPS: dict[str, dict[str, tuple[str, str]]] = {
     "oracle": {
-        "train": ("icprl_lightning.commands.oracle_train", "main",
+        "train": (_C + "oracle_train",
                   "train one goal-conditioned SB3 SAC on Reach goals; pick its behavior checkpoints"),
-        "export": ("icprl_lightning.commands.oracle_export", "main",
+        "export": (_C + "oracle_export",
                    "write a training run's weights as a checksummed, pickle-free oracle directory"),
     },
     "baseline": {
-        "sac": ("icprl_lightning.commands.baseline_sac", "main",
-                "SB3 SAC from scratch on each held-out Meta-World Reach goal"),
-        "dqn": ("icprl_lightning.commands.baseline_dqn", "main",
-                "SB3 DQN from scratch on each held-out DarkRoom goal"),
-        "tune-bandit": ("icprl_lightning.commands.baseline_tune_bandit", "main",
+        "sac": (_C + "baseline_sac", "SB3 SAC from scratch on each held-out Meta-World Reach goal"),
+        "dqn": (_C + "baseline_dqn", "SB3 DQN from scratch on each held-out DarkRoom goal"),
+        "tune-bandit": (_C + "baseline_tune_bandit",
                         "tune the feature-aware dueling-bandit baselines on training problems only"),
     },
     "analyze": {
-        "reward-quality": ("icprl_lightning.commands.analyze_reward_quality", "main",
+        "reward-quality": (_C + "analyze_reward_quality",
                            "RewardGen's held-out pair accuracy and label correlation with the latent reward"),
-        "reward-bayes": ("icprl_lightning.commands.analyze_reward_bayes", "main",
+        "reward-bayes": (_C + "analyze_reward_bayes",
                          "the Bayes-optimal DarkRoom reward from one T-PRL pair, in the same measures"),
-        "icrg-labels": ("icprl_lightning.commands.analyze_icrg_labels", "main",
+        "icrg-labels": (_C + "analyze_icrg_labels",
                         "ICRG's reward labels against the latent reward, in pretraining and at deployment"),
-        "dit-advantages": ("icprl_lightning.commands.analyze_dit_advantages", "main",
+        "dit-advantages": (_C + "analyze_dit_advantages",
                            "correlation of DIT's advantages with each step's progress (and the SAC oracle's A*)"),
-        "dit-weights": ("icprl_lightning.commands.analyze_dit_weights", "main",
+        "dit-weights": (_C + "analyze_dit_weights",
                         "which DarkRoom actions DIT's exp(A/eta) weights favour, against the behavior's"),
-        "label-ceiling": ("icprl_lightning.commands.analyze_label_ceiling", "main",
+        "label-ceiling": (_C + "analyze_label_ceiling",
                           "the exact goal posterior of DarkRoom I-PRL contexts' labels: what any learner can earn"),
-        "checksums": ("icprl_lightning.commands.analyze_checksums", "main",
+        "checksums": (_C + "analyze_checksums",
                       "generate configs' datasets in a scratch directory and print or compare their SHA-256"),
     },
 }
 VERBOSE_ENV = "ICPRL_VERBOSE"
+
+
+def command_parser(prog: str, doc: str | None) -> argparse.ArgumentParser:
+    """A program's parser whose --help prints ``doc`` (its library module's docstring) as written."""
+    return argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def baseline_parser(prog: str, doc: str, paper_episodes: int, default_episodes: int, family: str,
+                    eval_every: int, eval_episodes: int, test_episodes: int, out: str) -> argparse.ArgumentParser:
+    """The options ``icprl baseline sac`` and ``dqn`` share (``family``: the help of --family-seed)."""
+    parser = command_parser(prog, doc.split("\n\n")[0])
+    parser.add_argument("--episodes", type=int, default=default_episodes,
+                        help=f"training episodes per goal (paper: {paper_episodes})")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--family-seed", type=int, default=0, help=family)
+    parser.add_argument("--eval-every", type=int, default=eval_every, help="episodes between checkpoint evaluations")
+    parser.add_argument("--eval-episodes", type=int, default=eval_episodes)
+    parser.add_argument("--test-episodes", type=int, default=test_episodes)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for these MLPs)")
+    parser.add_argument("--out", type=Path, default=Path(out))
+    return parser
+
+
+def run_baseline(prog: str, ns: argparse.Namespace, args: Sequence[str] | None, digits: int,
+                 run: Callable[[], dict[str, Any]]) -> Path:
+    """``run()`` with ``--threads`` torch threads; its result, with the family seed and the command line, written
+    to ``--out``; the return and success printed."""
+    import torch
+
+    from icprl_lightning.io import write_json_atomic
+
+    torch.set_num_threads(ns.threads)
+    result = run()
+    result["family_seed"] = ns.family_seed
+    result["command"] = f"{prog} " + " ".join(sys.argv[1:] if args is None else args)
+    out = write_json_atomic(ns.out, result)
+    print(f"return {result['return']['mean']:.{digits}f} ± {result['return']['sem']:.{digits}f}, success "
+          f"{result['success']['mean']:.2f} ± {result['success']['sem']:.2f} -> {out}")
+    return out
 
 
 def usage() -> str:
@@ -112,7 +147,7 @@ def usage() -> str:
     lines = ["usage: icprl SUBCOMMAND [options]      (icprl SUBCOMMAND --help for its options)", "",
              "In-context preference-based RL: train on many tasks from preferences, deploy on held-out ones.", "",
              "subcommands:"]
-    lines += [f"  {name:<{width}}  {text}" for name, (_, _, text) in SUBCOMMANDS.items()]
+    lines += [f"  {name:<{width}}  {text}" for name, (_, text) in SUBCOMMANDS.items()]
     lines += ["", "options:", f"  --verbose{' ' * (width - 7)}show the traceback of an error (or {VERBOSE_ENV}=1)"]
     return "\n".join(lines)
 
@@ -121,8 +156,8 @@ def group_usage(group: str) -> str:
     verbs = GROUPS[group]
     width = max(map(len, verbs))
     lines = [f"usage: icprl {group} VERB [options]      (icprl {group} VERB --help for its options)", "",
-             SUBCOMMANDS[group][2], "", "verbs:"]
-    lines += [f"  {verb:<{width}}  {text}" for verb, (_, _, text) in verbs.items()]
+             SUBCOMMANDS[group][1], "", "verbs:"]
+    lines += [f"  {verb:<{width}}  {text}" for verb, (_, text) in verbs.items()]
     return "\n".join(lines)
 
 
@@ -212,7 +247,7 @@ def main(args: list[str] | None = None) -> None:
     name, rest = argv[0], argv[1:]
     if name not in SUBCOMMANDS:
         _unknown("subcommand", name, SUBCOMMANDS, "icprl", "icprl --help")
-    module, function, _ = SUBCOMMANDS[name]
+    module, _ = SUBCOMMANDS[name]
     if name in GROUPS:
         if not rest:
             sys.stderr.write(f"icprl {name}: error: name one of {', '.join(GROUPS[name])}; icprl {name} --help "
@@ -223,7 +258,7 @@ def main(args: list[str] | None = None) -> None:
             return
         if rest[0] not in GROUPS[name]:
             _unknown("verb", rest[0], GROUPS[name], f"icprl {name}", f"icprl {name} --help")
-        module, function, _ = GROUPS[name][rest[0]]
+        module, _ = GROUPS[name][rest[0]]
         name, rest = f"{name} {rest[0]}", rest[1:]
     problem = None if module else config_problem(name, rest)  # before Lightning is imported
     if problem:
@@ -235,7 +270,7 @@ def main(args: list[str] | None = None) -> None:
         elif not module:
             run_cli(argv, verbose=verbose)
         else:
-            getattr(importlib.import_module(module), function)(rest)
+            importlib.import_module(module).main(rest)
     except _user_errors() as e:
         if verbose:
             raise

@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -13,12 +12,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import icprl_lightning.data.checksums as source
+from icprl_lightning.commands import command_parser
 from icprl_lightning.data.checksums import changed_files, dataset_checksums
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="icprl analyze checksums", description=source.__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl analyze checksums", source.__doc__)
     parser.add_argument("configs", nargs="+", help="config files (a base and its overlays joined by '+')")
     parser.add_argument("--compare", type=Path, help="a JSON of an earlier run to compare against")
     args = parser.parse_args(argv)

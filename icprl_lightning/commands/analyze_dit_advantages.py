@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections.abc import Sequence
 from typing import Any
 
 import icprl_lightning.evaluation.dit_advantages as source
+from icprl_lightning.commands import command_parser
 from icprl_lightning.evaluation.dit_advantages import dit_advantages
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze dit-advantages", description=source.__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl analyze dit-advantages", source.__doc__)
     parser.add_argument("--dit", required=True, help="CONFIG:CHECKPOINT of DIT on true rewards")
     parser.add_argument("--icrg", help="CONFIG:CHECKPOINT of ICRG (optional: without it, DIT's correlations only)")
     parser.add_argument("--oracle", action="store_true",

@@ -2,20 +2,19 @@
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import icprl_lightning.evaluation.dit_weights as source
+from icprl_lightning.commands import command_parser
 from icprl_lightning.evaluation.dit_weights import MEASURES, dit_weights
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.io import write_json_atomic
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze dit-weights", description=source.__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl analyze dit-weights", source.__doc__)
     parser.add_argument("--ckpt", type=Path, action="append", required=True,
                         help="a DIT or ICRG checkpoint (repeat: seeds)")
     parser.add_argument("--json", type=Path, help="also write the per-checkpoint measures and their summary")

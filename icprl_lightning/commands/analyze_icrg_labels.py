@@ -2,19 +2,18 @@
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import icprl_lightning.evaluation.icrg_labels as source
+from icprl_lightning.commands import command_parser
 from icprl_lightning.evaluation.icrg_labels import icrg_labels
 from icprl_lightning.io import write_json_atomic
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze icrg-labels", description=source.__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl analyze icrg-labels", source.__doc__)
     parser.add_argument("--ckpt", type=Path, nargs="+", action="extend", required=True, help="ICRG checkpoint(s)")
     parser.add_argument("--config", type=Path, required=True, help="the ICRG runs' data config (their config.yaml)")
     parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import icprl_lightning.evaluation.reward_bayes as source
+from icprl_lightning.commands import command_parser
 from icprl_lightning.evaluation.reward_bayes import EVIDENCE, reward_bayes
 from icprl_lightning.evaluation.reward_quality import MEASURES
 from icprl_lightning.families.base import QUALITIES
@@ -15,8 +15,7 @@ from icprl_lightning.io import write_json_atomic
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze reward-bayes", description=source.__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl analyze reward-bayes", source.__doc__)
     parser.add_argument("--data-config", type=Path, required=True,
                         help="a DarkRoom T-PRL data config (a RewardGen run's config.yaml: the same held-out data)")
     parser.add_argument("--data-root", help="override the config's data.init_args.root_dir")

@@ -2,19 +2,18 @@
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import icprl_lightning.evaluation.reward_quality as source
+from icprl_lightning.commands import command_parser
 from icprl_lightning.evaluation.reward_quality import reward_quality, table
 from icprl_lightning.io import write_json_atomic
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(prog="icprl analyze reward-quality", description=source.__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl analyze reward-quality", source.__doc__)
     parser.add_argument("--ckpt", type=Path, nargs="+", action="extend", required=True,
                         help="RewardGen checkpoint(s) of one configuration (repeat or list: training seeds)")
     parser.add_argument("--data-config", type=Path, required=True,

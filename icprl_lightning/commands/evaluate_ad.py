@@ -8,12 +8,12 @@ from pathlib import Path
 from typing import Any
 
 import icprl_lightning.evaluation.ad_command as source
+from icprl_lightning.commands import command_parser
 from icprl_lightning.evaluation.ad_command import ADInputError, ad_markdown, evaluate_ad, parse_run
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="icprl evaluate ad", description=source.__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl evaluate ad", source.__doc__)
     parser.add_argument("--run", action="append", required=True,
                         help="NAME=CONFIG:CHECKPOINT[,CHECKPOINT...]: an AD run (several checkpoints: training seeds)")
     parser.add_argument("--episodes", type=int, default=20, help="consecutive episodes per held-out goal")

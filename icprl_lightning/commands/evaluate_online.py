@@ -8,14 +8,14 @@ from collections.abc import Sequence
 from typing import Any
 
 import icprl_lightning.evaluation.online_command as source
+from icprl_lightning.commands import command_parser
 from icprl_lightning.evaluation import online_mdp
 from icprl_lightning.evaluation.online_command import evaluate_online
 from icprl_lightning.online import PAIR_RULES
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="icprl evaluate online", description=source.__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl evaluate online", source.__doc__)
     parser.add_argument("--config", action="append", required=True,
                         help="the checkpoints' dataset config (repeat to stack overlays)")
     parser.add_argument("--ckpt", action="append", default=None,

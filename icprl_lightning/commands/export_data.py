@@ -10,16 +10,15 @@ EXPORT --out DIR`` brings it back byte for byte. What maps to what: ``docs/data_
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
+from icprl_lightning.commands import command_parser
 from icprl_lightning.data.interop import EXPORTERS, export_dataset
 from icprl_lightning.data.store import DatasetError
 
 
 def main(argv: list[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(prog="icprl export-data", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl export-data", __doc__)
     parser.add_argument("dataset", help="an icprl dataset directory (it holds manifest.json)")
     parser.add_argument("--format", required=True, choices=sorted(EXPORTERS),
                         help="hf: DatasetDict saved to disk (Arrow); parquet: one file per split; minari: reward "

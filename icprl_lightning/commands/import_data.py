@@ -19,15 +19,6 @@ from icprl_lightning.data.source_files import MAX_SOURCE_BYTES
 from icprl_lightning.data.store import DatasetError
 
 
-def _import_export(fmt: str, source: str, out: str, overwrite: bool) -> str:
-    """Rebuild an `icprl export-data` export (``data/interop``); the one-line summary."""
-    from icprl_lightning.data.interop import import_export
-
-    path = import_export(fmt, source, out, overwrite=overwrite)
-    return f"rebuilt the exported dataset {source} ({fmt}) into {path}; every file matches its exported SHA-256"
-
-
-
 def _foreign_arrays(args: argparse.Namespace) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, Any], str]:
     """(arrays, source row of each, origin, kind) of TRL rows or segment-pair label arrays (``data/interop``)."""
     from icprl_lightning.data.interop import preference_rows
@@ -78,10 +69,14 @@ def main(argv: list[str] | None = None) -> ImportSummary | str:
         if given:
             parser.error(f"{', '.join(given)} not used with --format {args.format}: the export carries its kind and "
                          "actions")
+        from icprl_lightning.data.interop import import_export
+
         try:
-            summary = _import_export(args.format, args.source, args.out, args.overwrite)
+            path = import_export(args.format, args.source, args.out, overwrite=args.overwrite)
         except (ValueError, OSError, DatasetError) as e:
             parser.exit(2, f"icprl import: error: {e}\n")
+        summary = (f"rebuilt the exported dataset {args.source} ({args.format}) into {path}; every file matches its "
+                   "exported SHA-256")
         print(summary)
         return summary
     if args.n_actions is None and args.action_dim is None:

@@ -13,16 +13,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import secrets
 import socket
 import sys
 
+from icprl_lightning.commands import command_parser
 from icprl_lightning.labelling.pairs import VIEWS
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="icprl label", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = command_parser("icprl label", __doc__)
     p.add_argument("--session", required=True, help="the session directory (created with its queue if new)")
     p.add_argument("--view", choices=sorted(VIEWS), help="what is compared (a new session only)")
     p.add_argument("--pairs", type=int, help="how many pairs the queue holds (a new session only)")
@@ -68,8 +69,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         uvicorn.Server(uvicorn.Config(app, log_level="warning")).run(sockets=[sock])
     finally:
-        import os
-
         os.close(lock)
     return 0
 

@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -13,14 +12,14 @@ import numpy as np
 import torch
 
 import icprl_lightning.families.metaworld_reach.sac as source
+from icprl_lightning.commands import command_parser
 from icprl_lightning.families.metaworld_reach import ReachTaskFamily
 from icprl_lightning.families.metaworld_reach.env import HORIZON
 from icprl_lightning.families.metaworld_reach.sac import SACTrainingRun, train_sac_oracle
 
 
 def main(args: Sequence[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(prog="icprl oracle train", description=source.__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl oracle train", source.__doc__.split("\n\n")[0])
     parser.add_argument("--goals", choices=("train", "test", "all"), default="train")
     parser.add_argument("--goal-index", type=int, default=None, help="train on this one goal of the split (per-task)")
     parser.add_argument("--timesteps", type=int, required=True)

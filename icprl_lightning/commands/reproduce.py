@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import icprl_lightning.reproduce.runner as source
+from icprl_lightning.commands import command_parser
 from icprl_lightning.reproduce.children import Interrupted, WorkLocked
 from icprl_lightning.reproduce.experiments import EXPERIMENTS, TableError, load_table, load_tables
 from icprl_lightning.reproduce.runner import RecordError, redraw, reproduce
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(prog="icprl reproduce", description=source.__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = command_parser("icprl reproduce", source.__doc__)
     parser.add_argument("table", nargs="?", help=f"a table of {EXPERIMENTS}/ (its file's name), or the path of an "
                         "experiment file (*.yaml)")
     parser.add_argument("--list", action="store_true", help=f"list the tables of {EXPERIMENTS}/ and what one fit "
@@ -55,8 +54,7 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"{table.name}: figures redrawn from {', '.join(map(str, sources))}", flush=True)
             return {}
         return reproduce(table, args.seeds, args.jobs, Path(args.work), Path(args.out) / table.name, args.refit,
-                         args.dry_run,
-                         args.threads, args.only)
+                         args.dry_run, args.threads, args.only)
     except (RecordError, TableError, WorkLocked) as e:
         parser.exit(2, f"{parser.prog}: error: {e}\n")
     except Interrupted as e:

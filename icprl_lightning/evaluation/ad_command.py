@@ -5,23 +5,20 @@ beside the source learner they distilled and the optimal return (Laskin et al. 2
         [--run ...] --episodes 20 --seeds 0 1 --out results/ad_darkroom [--title T] \
         [--against "ICPO online=docs/results/online_darkroom_paper/online_darkroom_paper.json"]
 
-Each ``--run`` is NAME=CONFIG:CHECKPOINT[,CHECKPOINT...]: the config's data section must be learning histories
-(``LearningHistoryDataModule``: its family and source learner), every checkpoint an AD one (``ADModule``) that
-fits those data; several checkpoints are training seeds. Each checkpoint is loaded through ``load_agent`` (its
-default: sampled actions) and deployed on every held-out goal of the family from an empty history for
-``--episodes`` consecutive episodes, its history kept across them (``evaluation.ad_rollout``), re-encoded once per
-episode when full (``agent.slide = H``), once per ``--seeds`` value (the episodes' starts and the action samples).
-Beside it, on the same goals and seeds: the source learner (the first run's ``QLearningHistories``) run from
-scratch for as many episodes, and the optimal return of the very episodes AD played (DarkRoom's closed-form V* of
-each start, as the family's references). ``--against NAME=JSON`` adds the per-episode curve of an ``icprl evaluate
-online`` result on the same family's held-out goals (its first pair rule; its last episode asks no queries).
+Each ``--run`` is NAME=CONFIG:CHECKPOINT[,CHECKPOINT...] (several checkpoints: training seeds): the config's data
+are learning histories (``LearningHistoryDataModule``), every checkpoint an ``ADModule`` that fits them. Each is
+loaded by ``load_agent`` (sampled actions) and played on every held-out goal from an empty history for
+``--episodes`` consecutive episodes, its history kept across them (``evaluation.ad_rollout``; re-encoded once per
+episode when full, ``agent.slide = H``), once per ``--seeds`` value. Beside it, on the same goals and seeds: the
+first run's source learner (``QLearningHistories``) from scratch, and the optimal return of the very episodes AD
+played (DarkRoom's closed-form V*). ``--against NAME=JSON`` adds the per-episode curve of an ``icprl evaluate
+online`` result on the same held-out goals (its first pair rule; its last episode asks no queries).
 
-Numbers: per episode, each training seed's mean over goals and episode seeds, then mean ± sem over training seeds
-(one checkpoint: ± over goals). ``results`` holds the first and last episodes' returns as rows × columns with
-``per_task`` (training seed × goal) for ``icprl reproduce --render``'s bootstrap intervals; the source learner's
-``per_task`` rows are its runs from scratch, one per episode seed. Everything a user passes is checked before any
-episode is played; each problem is one line naming the option. Writes ``<out>.json``, ``<out>.md`` (the return at
-episodes 1, 5, 10, ..., N) and the figure ``<out>.png``; ``evaluate_ad`` is the same as a function.
+Per episode: each training seed's mean over goals and episode seeds, then mean ± sem over training seeds (one
+checkpoint: ± over goals). ``results`` holds the first and last episodes with ``per_task`` (training seed × goal;
+the source learner's: one run per episode seed) for ``icprl reproduce --render``'s bootstrap. Every input is
+checked before any episode, each problem one line naming the option. Writes ``<out>.json``, ``<out>.md`` (episodes
+1, 5, 10, ..., N) and ``<out>.png``; ``evaluate_ad`` is the same as a function.
 """
 
 from __future__ import annotations
@@ -216,10 +213,7 @@ def evaluate_ad(runs: Mapping[str, tuple[str, Sequence[str]]], episodes: int = 2
             per_checkpoint.append(np.mean(per_seed, axis=0))
         tasks = np.asarray(per_checkpoint)  # [checkpoints, goals, episodes]
         seed_curves = tasks.mean(1)  # [checkpoints, episodes]
-        if len(checkpoints) > 1:
-            mean, sem = _mean_sem(seed_curves)
-        else:
-            mean, sem = _mean_sem(tasks[0])
+        mean, sem = _mean_sem(seed_curves if len(checkpoints) > 1 else tasks[0])
         curves[name] = {"mean": mean, "sem": sem, "per_seed": seed_curves.tolist()}
         results[name] = {first: _cell(tasks[:, :, 0]), last: _cell(tasks[:, :, -1])}
     print(f"source learner ({type(learner).__name__}) from scratch, {episodes} episodes per goal", file=sys.stderr,

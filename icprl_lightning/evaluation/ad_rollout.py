@@ -1,18 +1,11 @@
 """The in-context learning curve of Algorithm Distillation: the return of each of N consecutive episodes on
-held-out goals, with the context growing across them (``methods/ad.py``), beside the source learner's own curve.
+held-out goals, the context growing across them (``methods/ad.py``), beside the source learner's own curve and
+the optimal return of the very same episodes.
 
-AD is deployed online (Laskin et al. 2022, section 5): on an unseen goal the agent starts from an empty history
-and, at every step of every episode, acts from T_θ(· | s, history) and appends the step (s, a, r) to its history,
-so what it learned in episode e conditions episode e + 1. No parameter is updated; improvement over the episodes is
-the in-context learning. All goals step at once through the family's vector env (one Python loop over time steps),
-every episode of one env reset from one seed at the first episode, so the starts are fixed by ``seed``.
-
-* ``ad_learning_curve(agent, family, tasks, episodes, seed)`` — returns [n_tasks, episodes] of the agent;
-* ``source_learning_curve(learner, family, tasks, seed)`` — the same for the source learner run from scratch on
-  those goals (what AD distilled: the curve AD's is compared with);
-* ``optimal_curve(family, tasks, episodes, seed)`` — [n_tasks, episodes], the optimal return of the very episodes
-  ``ad_learning_curve`` plays with that ``seed``: DarkRoom's closed-form V* of each episode's start (as its
-  ``references``), the starts drawn by the same resets of the same env.
+AD is deployed online (Laskin et al. 2022, section 5): from an empty history on an unseen goal it acts from
+T_θ(· | s, history) and appends each step (s, a, r), so episode e conditions episode e + 1; no parameter is
+updated. All goals step at once through the family's vector env, reset from ``seed`` at the first episode only,
+so the starts are fixed by ``seed``.
 """
 
 from __future__ import annotations

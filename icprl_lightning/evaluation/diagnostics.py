@@ -4,21 +4,16 @@ A preference method should infer the task from the *labels* of its context. Each
 evaluation context in exactly one stated way, all else equal (states, actions, task, episode seed):
 
 * ``own`` — the context as generated (the paper's evaluation);
-* ``flipped_labels`` — every label inverted (y → 1 − y): the pairs say the opposite. A policy that reads
-  the labels should fall towards, or below, a random policy;
-* ``random_labels`` — every label replaced by a fair coin flip (fixed by the diagnostic's seed): the
-  labels say nothing. What a policy still earns here, it earns from the states and actions alone;
-* ``other_task`` — the whole context of another held-out task (the next task, same quality): nothing
-  in it is about this task. What a policy still earns here, it earns without its context;
-* ``shuffled_order`` — the same steps in a random order per row (fixed by the diagnostic's seed), for
-  contexts of per-step comparisons or transitions (I-PRL, DPT's reward contexts, bandit duels). The
-  paper's D is a set; a policy that reads it as one earns the same here. One trained on shuffled orders
-  (ICPO's ``pair_steps: shuffled``) is deployed on the stored, episode-ordered context, which this
-  diagnostic turns back into the kind of order it was trained on.
+* ``flipped_labels`` — y → 1 − y: a policy that reads the labels should fall towards, or below, random;
+* ``random_labels`` — fair coin labels (the diagnostic's seed): what is earned here comes from states and actions;
+* ``other_task`` — the context of the next held-out task, same quality: what is earned here needs no context;
+* ``shuffled_order`` — the steps in a random order per row (I-PRL, DPT's reward contexts, bandit duels). The
+  paper's D is a set; a policy that reads it as one earns the same. One trained on shuffled orders (ICPO's
+  ``pair_steps: shuffled``) is deployed on the episode-ordered context, which this turns back into its kind.
 
-So own − random_labels is what the labels add, random_labels − other_task what the rest of the context
-(its states, its behavior actions) adds. The label diagnostics apply to contexts with labels
-(``preferred``: I-PRL steps, T-PRL pairs, bandit duels), not to DPT's or DIT's reward contexts.
+So own − random_labels is what the labels add, random_labels − other_task what the rest of the context adds.
+The label diagnostics apply to contexts with labels (I-PRL steps, T-PRL pairs, bandit duels), not to DPT's or
+DIT's reward contexts.
 """
 
 from __future__ import annotations
@@ -82,15 +77,11 @@ def diagnose(context: Any, diagnostic: str, task_index: np.ndarray, seed: int = 
     if diagnostic in ORDER_DIAGNOSTICS and not has_step_order(context):
         raise ValueError(f"{diagnostic} needs a context of steps ([row, step, ...] fields); "
                          f"{type(context).__name__} is not one")
-    if diagnostic == "flipped_labels":
-        return flipped_labels(context)
-    if diagnostic == "random_labels":
-        return random_labels(context, seed)
-    if diagnostic == "other_task":
-        return other_task(context, task_index)
-    if diagnostic == "shuffled_order":
-        return shuffled_order(context, seed)
-    return context
+    change = {"own": lambda: context, "flipped_labels": lambda: flipped_labels(context),
+              "random_labels": lambda: random_labels(context, seed),
+              "other_task": lambda: other_task(context, task_index),
+              "shuffled_order": lambda: shuffled_order(context, seed)}
+    return change[diagnostic]()
 
 
 def checked_contexts(contexts: Any) -> list[str]:

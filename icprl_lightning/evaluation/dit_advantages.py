@@ -33,6 +33,7 @@ import torch
 from icprl_lightning.checkpoints import load_module
 from icprl_lightning.data.batches import ContextBatches, other_rows, stored_context
 from icprl_lightning.data.config import datamodule_from_config
+from icprl_lightning.evaluation.trajectory_data import correlation
 from icprl_lightning.families.metaworld_reach.env import GOAL_SLICE
 from icprl_lightning.families.metaworld_reach.sac_family import ReachSACTaskFamily
 from icprl_lightning.methods.dit import DITModule, swap_roles
@@ -42,11 +43,6 @@ from icprl_lightning.samples import ContextSamples, Samples
 
 TRAJECTORY = ("states_a", "actions_a", "states_b", "actions_b")
 GAE_LAMBDAS = (0.5, 0.8, 0.9, 0.95)  # between the TD error (λ = 0) and the return-to-go (λ = 1)
-
-
-def correlation(x: torch.Tensor, y: torch.Tensor) -> float:
-    """Pearson correlation of two equally shaped tensors, pooled over every entry."""
-    return float(np.corrcoef(x.flatten().numpy(), y.flatten().numpy())[0, 1])
 
 
 def advantages(module: DITModule, batch: Samples) -> dict[str, torch.Tensor]:

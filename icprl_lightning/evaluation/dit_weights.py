@@ -23,9 +23,8 @@ it measures per context quality:
   ``losses.td_advantages``), and with ``rtg_``: Â = the return-to-go over V̂ (``advantage: return_to_go``,
   ``losses.return_to_go_advantages``), each from the checkpoint's own V̂, whichever form it was trained with.
 
-Each checkpoint reads the data of its own run (``config.yaml`` beside ``checkpoints/``), so the
-``trajectories_per_task`` override of a reproduce table is honoured. Several ``--ckpt`` are training
-seeds; each measure is reported as mean ± sem over them.
+Each checkpoint reads its own run's data (``config.yaml`` beside ``checkpoints/``: a table's overrides hold).
+Several ``--ckpt`` are training seeds: mean ± sem over them.
 """
 
 from __future__ import annotations

@@ -1,42 +1,25 @@
 """Weak and strong regret of in-context dueling-bandit policies vs context size (paper, appendix "Dueling
-Bandit Experiments").
+Bandit Experiments"; the baselines: docs/baselines_bandit.md).
 
 On a held-out problem τ with context D^I = {(a_h, a'_h, y_h)}_{h ≤ H}, each method plays one duel after
-seeing the first h comparisons, for every context size h = 1..H, scored by the weak regret (the paper's)
-and the strong regret
+seeing the first h comparisons, for every h = 1..H, scored by
 
-    reg(a, a') = min(R*_τ − R_τ(a), R*_τ − R_τ(a'))                      (``metrics.weak_regret``),
-    reg_strong(a, a') = ((R*_τ − R_τ(a)) + (R*_τ − R_τ(a'))) / 2         (``metrics.strong_regret``),
+    reg(a, a') = min(R*_τ − R_τ(a), R*_τ − R_τ(a'))                      (``metrics.weak_regret``, the paper's),
+    reg_strong(a, a') = ((R*_τ − R_τ(a)) + (R*_τ − R_τ(a'))) / 2         (``metrics.strong_regret``, ≥ the weak).
 
-the strong regret being the standard average of the two gaps (``metrics``: on one arm's scale, ≥ the weak one).
+Rows: the trained method through ``Agent.act_each_prefix`` (argmax_ã T_θ(ã | D_{1:h}) when greedy, as in the
+paper), a' uniform over the other arms; DTS fed the same prefixes (paper: "DTS also utilizes the same
+bandit preferences in D^I"); the behaviour policy's own duel h + 1; and, given the family, the feature-aware
+``LINEAR_BASELINES`` (``linear_baselines.prefix_duels``) with the knobs ``tuning.TUNED`` chose on training
+problems only (MaxInP β = 0.1, v = 0.01; BT Thompson v = 1.0, s = 0.1; 5 warm-started Newton steps per
+prefix). ``bayes`` is a floor per regret, not one learner (the Bayes-optimal pair for weak regret, the
+Bayes-optimal arm against itself for strong, under the prior N(0, I/d), 256 Laplace draws): a learner goes
+below it only by chance, within the standard error.
 
-* The trained method (ICPO, or any policy on ``StepPreferenceContext`` with ``state_dim = 0``), through
-  the public ``Agent``: a = its action after D_{1:h} (``Agent.act_each_prefix``: argmax_ã T_θ(ã | D_{1:h})
-  for a greedy agent, as in the paper) and a' uniform over the other arms.
-* DTS: Double Thompson Sampling fed the same first h comparisons (incrementally over h), then asked for
-  its duel (paper: "DTS also utilizes the same bandit preferences in D^I").
-* Behaviour: the duel the context's own behaviour policy played next, i.e. its duel h + 1.
-* Given the family (``LinearDuelingBanditFamily``: its arm features, prior and Bradley–Terry temperature),
-  the feature-aware baselines of ``families/dueling_bandit``, fed the same prefixes
-  (``linear_baselines.prefix_duels``), with the hyperparameters ``tuning.TUNED`` chose on training problems
-  only (300 training problems, uniform contexts of 50 comparisons):
-
-  - ``maxinp``: MaxInP (Saha 2021), β = 0.1, prior variance v = 0.01;
-  - ``bt_thompson``: two-sample Thompson sampling on the Laplace Bradley–Terry posterior, v = 1.0,
-    posterior scale s = 0.1;
-  - ``bayes``: the Bayes reference under the family's own prior N(0, I/d) (Laplace posterior, 256 draws).
-    It is a floor per regret, not one learner: its weak regret is that of the Bayes-optimal pair for weak
-    regret (rule ``"weak"``), its strong regret that of the Bayes-optimal arm against itself (rule
-    ``"strong"``). Averaged over problems drawn from the prior no rule has lower expected regret, so a
-    learner goes below it only by chance, within the standard error.
-
-  Every learner refits with 5 warm-started Newton steps per prefix.
-
-Duels are ``(first, second)`` int64 tensors ``[B, H]``; column h − 1 is the duel after h comparisons.
-Per-problem regret curves ``[B, H]`` are summarized over problems as mean ± standard error, at h = H
-(``weak_regret``, ``strong_regret``), averaged over h = 1..H (``weak_regret_auc``, ``strong_regret_auc``)
-and at the context sizes ``CONTEXT_SIZES`` below H (``weak_regret_h10``, ...). Results are keyed by the
-method's own name (``method_name``: ``ICPOModule`` -> ``icpo``) beside the ``BASELINES``.
+Duels are ``(first, second)`` int64 ``[B, H]``, column h − 1 after h comparisons. Regret curves ``[B, H]`` are
+summarized over problems as mean ± sem at h = H (``weak_regret``), averaged over h (``weak_regret_auc``) and at
+``CONTEXT_SIZES`` (``weak_regret_h10``, ...); likewise ``strong_*``. Rows are keyed by ``method_name``
+(``ICPOModule`` -> ``icpo``) beside the ``BASELINES``.
 """
 
 from __future__ import annotations
@@ -100,8 +83,7 @@ def linear_learner(name: str, family: LinearDuelingBanditFamily, n_problems: int
 
 
 @torch.no_grad()
-def agent_duels(agent: Agent, context: StepPreferenceContext, rng: np.random.Generator, batch_chunk: int = 32
-                ) -> Duels:
+def agent_duels(agent: Agent, context: StepPreferenceContext, rng: np.random.Generator, batch_chunk: int = 32) -> Duels:
     """First arm: the agent's action after D_{1:h}, h = 1..H (``act_each_prefix``); second uniform over the rest."""
     policy = agent.policy
     if policy.state_dim != 0 or not policy.action_spec.discrete:

@@ -31,13 +31,8 @@ import torch
 from icprl_lightning.checkpoints import load_module
 from icprl_lightning.data import PreferenceDataModule
 from icprl_lightning.deploy import load_agent
-from icprl_lightning.evaluation.trajectory_data import tprl_datamodule
+from icprl_lightning.evaluation.trajectory_data import correlation, tprl_datamodule
 from icprl_lightning.methods.icrg import ICRGModule
-
-
-def correlation(labels: torch.Tensor, rewards: torch.Tensor) -> float:
-    """Pearson correlation of two equally shaped tensors, pooled over every entry."""
-    return float(np.corrcoef(labels.flatten().numpy(), rewards.flatten().numpy())[0, 1])
 
 
 @torch.no_grad()

@@ -7,20 +7,17 @@
     icprl evaluate online --config configs/icpo_bandit.yaml --ckpt runs/icprl/<id>/checkpoints/last.ckpt \
         --seeds 0 1 2 [--rounds 200] [--n-problems 50] [--ad-ckpt <AD on duels>/checkpoints/last.ckpt ...]
 
-The config's data section names the dataset (generated if missing) whose held-out tasks the checkpoints
-play, from an empty context. An MDP family (any ``TaskFamily`` whose oracle has ``utility``) is played as
-``evaluation.online_mdp`` says: ``--episodes`` episodes in a row, ``max_context / episodes`` queries each,
-answered by the dataset's annotator, beside the same checkpoints on the offline contexts (and ``--dqn``'s
-learning curve). Dueling bandits are played as ``evaluation.online_bandit`` says: ``--rounds`` duels beside
-Double Thompson Sampling. ``--rule`` (repeat to compare) is the pair rule the agent asks by; ``--labels``
-flipped / random is the online label diagnostic (the answers inverted, or replaced by fair coins, before the
-agent sees them). Several ``--ckpt`` are training seeds: every row is then the mean ± sem over them.
-``--ad-ckpt`` (dueling bandits; repeat for training seeds) adds the row ``ad``: Algorithm Distillation on DTS's
-duels (``configs/ad_bandit.yaml``, docs/ad_bandit.md) playing the same problems; with it ``--ckpt`` may be left out.
-``--browser-session DIR`` (MDP) has a person answer each comparison in the labelling page instead of the
-dataset's annotator (``labelling/online.py``).
+The config's data section names the dataset (generated if missing) whose held-out tasks the checkpoints play
+from an empty context. An MDP family (a ``TaskFamily`` whose oracle has ``utility``) is played as
+``evaluation.online_mdp`` says: ``--episodes`` in a row, ``max_context / episodes`` queries each, answered by the
+dataset's annotator, beside the offline contexts (and ``--dqn``'s learning curve); a dueling bandit as
+``evaluation.online_bandit`` says: ``--rounds`` duels beside Double Thompson Sampling. ``--rule`` (repeat to
+compare) is the pair rule; ``--labels flipped|random`` the online label diagnostic (answers inverted, or fair
+coins). Several ``--ckpt`` are training seeds (rows: mean ± sem over them). ``--ad-ckpt`` (bandits) adds the row
+``ad``: Algorithm Distillation on DTS's duels (``configs/ad_bandit.yaml``, docs/ad_bandit.md); with it ``--ckpt``
+may be left out. ``--browser-session DIR`` (MDP): a person answers in the labelling page (``labelling/online.py``).
 
-Prints the result as JSON; ``--out PATH`` also writes ``PATH.json``, its table ``PATH.md`` and the figure ``PATH.png``.
+Prints the result as JSON; ``--out PATH`` also writes ``PATH.json``, ``PATH.md`` and ``PATH.png``.
 ``evaluate_online`` is the same run as a function.
 """
 

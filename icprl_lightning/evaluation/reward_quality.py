@@ -3,9 +3,8 @@ r"""RewardGen's reward quality on the held-out tasks, per context quality (``icp
     icprl analyze reward-quality --data-config configs/reward_gen_darkroom.yaml \
         --ckpt runs/icprl/<seed 0>/checkpoints/best.ckpt [--ckpt <seed 1> ...] [--json quality.json]
 
-Several ``--ckpt`` are training seeds of one RewardGen configuration (one ``pair_source``); each measure is
-averaged over the held-out pairs of a checkpoint, then reported as mean ± sem over the checkpoints. The
-three measures of R_ψ(s, a | ξ⁺, ξ⁻) (paper section 5.3, eq. (L_R^T)), per context quality:
+Several ``--ckpt`` are training seeds of one configuration (one ``pair_source``): mean ± sem over them of each
+measure's mean over held-out pairs. The measures of R_ψ(s, a | ξ⁺, ξ⁻) (paper section 5.3, eq. (L_R^T)):
 
 * ``other_pair_accuracy``: R_ψ conditioned on another pair of the same held-out task orders the scored
   pair as its label does (``held_out("pair_accuracy")``): the scored transitions are not in view, the fair test.
@@ -16,9 +15,8 @@ three measures of R_ψ(s, a | ξ⁺, ξ⁻) (paper section 5.3, eq. (L_R^T)), pe
   slot); an ``other_pair`` model was never trained on this form.
 * ``reward_correlation``: Pearson correlation, pooled over steps and tasks, of R_ψ's per-step labels r̂
   with the latent per-step rewards on the held-out unlabeled behavior trajectories, each labeled with its
-  evaluation pair as context (``InContextRewardModel.label``, as ICRG deploys; read by the same rule).
-  The latent rewards come from the ``RewardTrajectories`` dataset over the same trajectories
-  (``trajectory_data``).
+  evaluation pair as context (``InContextRewardModel.label``, as ICRG deploys; read by the same rule); the
+  latent rewards from the ``RewardTrajectories`` dataset over the same trajectories (``trajectory_data``).
 
 Chance accuracy is 0.5; tied returns carry coin-flip labels, so the ceiling is the manifest's label
 agreement (``eval_label_statistics`` in the JSON).
@@ -30,12 +28,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
 from icprl_lightning.checkpoints import load_module
 from icprl_lightning.contexts import TrajectoryPreferenceContext
-from icprl_lightning.evaluation.trajectory_data import tprl_datamodule
+from icprl_lightning.evaluation.trajectory_data import correlation, tprl_datamodule
 from icprl_lightning.families.base import QUALITIES
 from icprl_lightning.methods.reward_gen import RewardGenModule
 from icprl_lightning.metrics import mean_sem_or_none
@@ -76,7 +73,7 @@ def label_correlation(model: RewardGenModule, context: TrajectoryPreferenceConte
     """Pearson correlation of r̂ on the behavior trajectories (labeled with their pair) with the latent rewards."""
     labels = torch.cat([model.reward.label(c, c.behavior_states, c.behavior_actions)
                         for c in (rows(context, start) for start in range(0, context.batch_size, ROWS))])
-    return float(np.corrcoef(labels.flatten().numpy(), rewards.flatten().numpy())[0, 1])
+    return correlation(labels, rewards)
 
 
 def evaluate(model: RewardGenModule, pairs: dict[str, ContextSamples],

@@ -1,20 +1,12 @@
 """In-context episodes on held-out MDP tasks through the public ``Agent``, and their summary.
 
-The paper's performance metric (section 6): the latent cumulative reward of an episode in an unseen
-task, with the agent conditioned on a fixed offline context from that task (no parameter updates, no
-reward observed). Returns are averaged per task, then summarized as mean ± standard error over tasks.
-``success`` (where the environment reports it, Meta-World Reach) is the share of episodes whose success
-flag was raised at some step, metaworld's criterion.
-
-* ``rollout_in_context(agent, suite, seed)`` — one episode per context of an ``EvalSuite``;
-* ``rollout_seeds(make_agent, suite, seeds)`` — the same for several episode seeds, concatenated;
-* ``suite_env(suite)`` — one vector env of a suite's tasks, to pass as ``env=`` to both: ``reset(seed=s)``
-  fixes every episode (the vector-env contract), so reusing one env gives the episodes fresh ones give,
-  without building it again (a Meta-World env starts worker processes: seconds, more than an episode);
-* ``episode_stats`` / ``summarize`` — mean ± sem over held-out tasks (``summarize`` adds the suite's
-  behavior and optimal/expert references).
-
-The context diagnostics (flipped / random labels, another task's context) are ``evaluation.diagnostics``.
+The paper's performance metric (section 6): the latent cumulative reward of an episode in an unseen task, the
+agent conditioned on a fixed offline context from that task (no parameter updates, no reward observed),
+averaged per task, then mean ± standard error over tasks. ``success`` (Meta-World Reach) is the share of
+episodes whose success flag was raised at some step, metaworld's criterion. ``suite_env`` builds one vector env
+of a suite's tasks to pass as ``env=``: ``reset(seed=s)`` fixes every episode, so reusing it gives the episodes
+a fresh one gives without starting Meta-World's worker processes again (seconds, more than an episode). The
+context diagnostics are ``evaluation.diagnostics``.
 """
 
 from __future__ import annotations
@@ -51,13 +43,9 @@ def suite_env(suite: EvalSuite) -> Iterator[Any]:
 @torch.no_grad()
 def rollout_in_context(agent: AgentLike, suite: EvalSuite, seed: int = 0, env: Any = None,
                        progress: bool = True) -> dict[str, np.ndarray]:
-    """Run one episode per context; returns per-episode ``return`` [B] (and ``success`` when the env reports it).
-
-    ``success`` is 1 for an episode whose ``info["success"]`` was true at any step (metaworld's criterion).
-    ``env``: a vector env of the suite's tasks to reuse (``suite_env``), left open; by default a fresh one,
-    closed afterwards. ``progress``: the steps are counted (``progress.Progress``: a bar in a terminal,
-    plain lines in a log when the episodes take long).
-    """
+    """One episode per context: per-episode ``return`` [B] (and ``success``, 1 when ``info["success"]`` was true at
+    any step). ``env``: a ``suite_env`` to reuse, left open (default: a fresh one, closed after). ``progress``:
+    steps counted (``progress.Progress``: a bar in a terminal, plain lines in a log)."""
     if env is None:
         with suite_env(suite) as fresh:
             return rollout_in_context(agent, suite, seed, fresh, progress)
@@ -110,14 +98,9 @@ def rollout_seeds(make_agent: Callable[[int], AgentLike], suite: EvalSuite, seed
 
 
 def episode_stats(suite: EvalSuite, episodes: dict[str, np.ndarray], with_tasks: bool = False) -> dict[str, Any]:
-    """Mean ± sem over held-out tasks of each per-episode metric (``<name>`` and ``<name>_sem``).
-
-    ``with_tasks``: also ``per_task`` — each metric's per-task means (sorted task ids), the values the
-    bootstrap confidence intervals of ``reproduce.statistics`` resample.
-
-    ``episodes`` hold B or n · B values (n seeds, seed-major as ``rollout_seeds`` returns them); each
-    task's episodes are averaged first. ``normalized_return`` is computed when missing and normalizable.
-    """
+    """Mean ± sem over held-out tasks of each per-episode metric (``<name>``, ``<name>_sem``) of B or n · B episodes
+    (seed-major, as ``rollout_seeds``), each task's episodes averaged first; ``normalized_return`` computed when
+    missing. ``with_tasks``: also ``per_task``, the per-task means (sorted ids) the bootstrap resamples."""
     n_seeds, rest = divmod(len(episodes["return"]), len(suite.task_index))
     if rest or n_seeds == 0:
         raise ValueError(f"{len(episodes['return'])} episodes are not a multiple of the suite's "

@@ -3,19 +3,12 @@
     icprl report runs/icprl/<run id>            # prints the report, writes <run>/curves.png
     icprl report runs/icprl/<run id> --figure out.png
 
-Reads the run's ``metrics.csv`` (``callbacks/run_logs.py`` writes ``<run>/csv/metrics.csv`` beside W&B; a
-run whose first logger is a ``CSVLogger`` has ``<run>/metrics.csv``) and prints:
-
-* the learning curves: per metric its first, last and best value and the step (epoch) of each; best is
-  the lowest for losses, regrets and errors, the highest otherwise (``lower_is_better``); standard errors
-  and the constant behavior/optimal/expert references are left to the table below;
-* the last held-out results: the rollout table (``val/<env>/<quality>/{return, normalized_return, success}``
-  per quality, with the behavior and optimal/expert rows as logged) and the bandits' weak-regret table
-  (``evaluation.report``);
-
-and draws the curves into a PNG with matplotlib's ``Figure`` (Agg; no display or server): the held-out return
-per context quality (low, medium, high, its behavior policy dashed) against optimizer steps and against
-training seconds, the losses, then the other metrics, one panel per kind.
+Reads ``<run>/csv/metrics.csv`` (``callbacks/run_logs.py``; ``<run>/metrics.csv`` when the first logger is a
+``CSVLogger``) and prints per metric its first, last and best value and step (best: lowest for losses, regrets
+and errors, ``lower_is_better``), then the last held-out tables (``evaluation.report``: rollouts per quality
+with the behavior and optimal/expert rows, the bandits' weak regret). Draws the curves with matplotlib's
+``Figure`` (Agg; no display): held-out return per quality (behavior dashed) against optimizer steps and
+against training seconds, the losses, then the other metrics, one panel per kind.
 """
 
 from __future__ import annotations

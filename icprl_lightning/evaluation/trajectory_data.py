@@ -5,13 +5,15 @@ latent rewards of the very trajectories they label. ``TrajectoryPairs`` and ``Re
 the same trajectories from one family, setting arguments and seed (they differ only in what they store
 beside them), so the config's own setting and the other one built from its ``setting.init_args`` (without
 the annotator, which changes labels, not trajectories) give two datasets over the same bytes of states and
-actions. Each measure checks that it does (a ``ValueError`` otherwise).
+actions. Each measure checks that it does (a ``ValueError`` otherwise), and scores by ``correlation``.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+import torch
 import yaml
 
 from icprl_lightning.data import PreferenceDataModule
@@ -19,6 +21,11 @@ from icprl_lightning.data.config import datamodule_from_config
 from icprl_lightning.data.settings import RewardTrajectories, TrajectoryPairs
 
 KINDS = {"trajectory_preference": TrajectoryPairs, "reward_trajectory": RewardTrajectories}
+
+
+def correlation(x: torch.Tensor, y: torch.Tensor) -> float:
+    """Pearson correlation of two equally shaped tensors, pooled over every entry."""
+    return float(np.corrcoef(x.flatten().numpy(), y.flatten().numpy())[0, 1])
 
 
 def tprl_datamodule(config: str | Path, kind: str, root_dir: str | None = None) -> PreferenceDataModule:

@@ -1,16 +1,13 @@
 """The fits ``icprl reproduce`` starts as processes, what a signal does to them, and one reproduction per folder.
 
-* ``Children.run``: one ``icprl fit`` in its own session (so a terminal's Ctrl+C reaches it only through
-  here), its output into a log that is never a link or a FIFO, tracked while it runs.
-* ``Children.forwarding``: while the fits run, SIGTERM and SIGINT to ``icprl reproduce`` are sent on to every
-  running fit (a fit sent SIGTERM saves ``last.ckpt`` at its next batch boundary and exits 143) and stop the
-  command with ``Interrupted``; no new fit starts after that. The command then waits for its fits to end, records
-  each stopped one as interrupted (``<run>-seed<s>.json``: ``"status": "interrupted"`` and the ``last.ckpt`` it
-  left), and exits 128 + the signal. Running the command again resumes an interrupted fit from that checkpoint
-  (``--ckpt_path``) instead of training a second copy.
-* ``work_lock``: an exclusive, non-blocking ``flock`` on ``<folder>/.reproduce.lock``: a second ``icprl
-  reproduce`` on the same folder is refused in one line naming the holder's pid, rather than training the same
-  runs twice into one folder.
+* ``Children.run``: one ``icprl fit`` in its own session (a terminal's Ctrl+C reaches it only through here), its
+  output into a log that is never a link or a FIFO.
+* ``Children.forwarding``: SIGTERM and SIGINT are sent on to every running fit (which saves ``last.ckpt`` at its
+  next batch boundary and exits 143) and stop the command with ``Interrupted``; no new fit starts. Each stopped
+  fit is recorded as interrupted (``"status": "interrupted"`` and its ``last.ckpt``) and the command exits
+  128 + the signal; running it again resumes from that checkpoint instead of training a second copy.
+* ``work_lock``: an exclusive, non-blocking ``flock`` on ``<folder>/.reproduce.lock``: a second reproduction
+  in the same folder is refused in one line naming the holder's pid.
 """
 
 from __future__ import annotations

@@ -1,20 +1,12 @@
 """The claims table: each of the paper's claims, one verdict per condition, read from its results JSON.
 
-``docs/claims.yaml`` lists the claims; each is "row ``a`` beats row ``b``" of one ``icprl evaluate`` JSON under
-``docs/results/<table>/``, in each of its ``columns`` (the context quality, or the bandit's context source). A row
-is a results row (``ICPO``, ``behavior``) or one of its context diagnostics (``ICPO@flipped_labels``).
-
-A cell says what the comparison can carry, in a few words:
-
-* where the JSON holds per-task values (training seeds × held-out tasks), the verdict of the 95% stratified
-  bootstrap interval of the difference of means (``statistics.difference``) with that difference and interval:
-  ``holds +0.485 [+0.407, +0.555]``;
-* where it holds only each training seed's mean, no interval (3 values cannot make one): each seed's difference,
-  paired by training seed (or against the one value of a reference row), and how many fall on the claimed side:
-  ``3 of 3 seeds +0.146 +0.193 +0.232``.
-
-``render`` writes the short table into README.md and docs/RESULTS.md and the full numbers (both means, the
-difference, n) into docs/RESULTS.md only.
+``docs/claims.yaml`` lists the claims; each is "row ``a`` beats row ``b``" of one ``icprl evaluate`` JSON, in
+each of its ``columns``; a row is a results row (``ICPO``) or one of its diagnostics (``ICPO@flipped_labels``).
+With per-task values (training seeds × held-out tasks) a cell is the verdict of the 95% stratified bootstrap
+interval of the difference of means (``statistics.difference``): ``holds +0.485 [+0.407, +0.555]``. With only
+each seed's mean, no interval (3 values cannot make one): each seed's paired difference and how many fall on the
+claimed side: ``3 of 3 seeds +0.146 +0.193 +0.232``. ``render`` writes the short table into README.md and
+docs/RESULTS.md, the full numbers into docs/RESULTS.md only.
 """
 
 from __future__ import annotations

@@ -33,8 +33,7 @@ def is_ad_run(config: Path) -> bool:
     return isinstance(model, dict) and model.get("class_path") == "icprl_lightning.methods.ad.ADModule"
 
 
-def evaluate_command(table: Any, evaluation: Any, checkpoints: dict[str, list[str]], out_dir: Path
-                     ) -> list[str]:
+def evaluate_command(table: Any, evaluation: Any, checkpoints: dict[str, list[str]], out_dir: Path) -> list[str]:
     command = ["icprl", "evaluate", "--title", table.title, "--seeds", *map(str, table.eval_seeds),
                *evaluation.flags, "--out", str(out_dir / f"{table.name}{evaluation.suffix}")]
     if table.contexts != ("own",):
@@ -57,8 +56,7 @@ def deploy_offline(table: Any, evaluation: Any, checkpoints: dict[str, list[str]
     return {"command": shlex.join(command)}
 
 
-def deploy_online(table: Any, evaluation: Any, checkpoints: dict[str, list[str]], out_dir: Path
-                    ) -> dict:
+def deploy_online(table: Any, evaluation: Any, checkpoints: dict[str, list[str]], out_dir: Path) -> dict:
     """Deploy every evaluated run of ``table`` online as ``evaluation`` says (each run's training seeds are its
     ``checkpoints``, its dataset the ``saved_config`` of the first), episode seeds ``table.eval_seeds``, beside
     ``table.baselines``; write ``<out_dir>/<table><suffix>.json`` (and ``.png`` with ``evaluation.figure``) and

@@ -7,29 +7,24 @@
     icprl reproduce darkroom_ipref --redraw            # redraw its figures from docs/results, nothing else
     icprl reproduce my_table.yaml --dry-run            # a table of your own: an experiment file anywhere
 
-A table is an experiment file, ``configs/experiment/<table>.yaml`` (``experiments.py`` reads it): runs (a method's
-configs and overrides) and the evaluations made of them. Every run is trained once per training seed
-(``--seed_everything``) with ``icprl fit`` in its own process, at most ``--jobs`` at a time
-(``OMP_NUM_THREADS`` = cores / jobs each), its log in ``<work>/<table>/<run>-seed<s>.log``; then
-``icprl evaluate`` deploys each run's last checkpoints (all its training seeds) on the held-out contexts with
-the context diagnostics, greedy and sampled, and writes ``docs/results/<table>/<table>[_sampled]`` (``.json``, ``.md``,
-``.png``, ``_diagnostics.png``); an online evaluation deploys them asking for comparisons as they act
-(``evaluate_online``); an ad evaluation plays AD checkpoints for episodes in a row beside their source learner
-(``evaluate_ad``). Training seeds share the dataset (the family's seed fixes it); they differ in
-initialization, shuffling and the pairs drawn. A table whose ``runs_from`` names another trains (or finds)
-that table's fits in its folder, ``<work>/<other table>/``.
+A table is an experiment file, ``configs/experiment/<table>.yaml`` (``experiments.py``): runs and the evaluations
+made of them. Every run is trained once per training seed (``--seed_everything``: same dataset, different
+initialization, shuffling and pairs) by ``icprl fit`` in its own process, at most ``--jobs`` at a time
+(``OMP_NUM_THREADS`` = cores / jobs), logged to ``<work>/<table>/<run>-seed<s>.log``. Then ``icprl evaluate``
+deploys each run's last checkpoints on the held-out contexts with the context diagnostics, greedy and sampled,
+writing ``docs/results/<table>/<table>[_sampled]`` (``.json``, ``.md``, ``.png``, ``_diagnostics.png``); an online
+evaluation asks for comparisons as it acts (``evaluate_online``); an ad one plays AD for episodes in a row beside
+its source learner (``evaluate_ad``). A ``runs_from`` table finds its fits in ``<work>/<other table>/``. The
+rollout callback's held-out returns per epoch become ``learning_curves`` and ``<table>_curve.png``.
 
-Each fit logs to CSV; the rollout callback's held-out returns per epoch become ``learning_curves`` in
-the summary and ``docs/results/<table>/<table>_curve.png``. A finished fit records its checkpoint in
-``<run>-seed<s>.json`` with a digest of its inputs (the fit command and the text of its config files);
-running the command again skips a fit whose inputs are unchanged, so an interrupted reproduction resumes
-where it stopped, and retrains one whose command or configs changed since, or whose recorded checkpoint
-file is gone (``--refit`` trains all again). Every record is read before the first fit starts: a damaged
-or foreign one (not JSON, or not a record's shape) is one error naming it, never a traceback mid-run.
-SIGTERM or SIGINT stops the running fits (each saves ``last.ckpt``), records them as interrupted and exits
-128 + the signal; the same command again resumes them (``children.py``); a second ``icprl reproduce`` in the
-same folder is refused. The command prints, and writes to ``docs/results/<table>/<table>_reproduce.json``, each
-stage's wall-clock seconds, the checkpoints and the exact commands.
+A finished fit is recorded in ``<run>-seed<s>.json`` with a digest of its inputs (the fit command and the text of
+its config files): running again skips a fit whose inputs are unchanged and whose checkpoint exists, so an
+interrupted reproduction resumes where it stopped (``--refit`` trains all again). Every record is read before the
+first fit: a damaged or foreign one is one error naming it, never a traceback mid-run. SIGTERM or SIGINT stops the
+running fits (each saves ``last.ckpt``), records them as interrupted and exits 128 + the signal; the same command
+resumes them (``children.py``); a second ``icprl reproduce`` in the same folder is refused. Each stage's
+wall-clock seconds, the checkpoints and the exact commands are printed and written to
+``docs/results/<table>/<table>_reproduce.json``.
 """
 
 from __future__ import annotations

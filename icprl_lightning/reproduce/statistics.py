@@ -2,31 +2,22 @@
 the difference of two methods' means, and the probability of improvement (Agarwal et al., 2021, "Deep RL at the
 Edge of the Statistical Precipice", the ``rliable`` library).
 
-A method's scores form a matrix ``[runs, tasks]``: one row per training seed, one column per held-out task
-(DarkRoom goal, Reach goal, bandit problem), each cell that seed's mean over its episodes on that task
-(``per_task`` in an ``icprl evaluate`` JSON). Where a JSON predates per-task recording the matrix is
-``[seeds, 1]`` (each seed's mean over tasks, ``per_seed``): its interval then covers the training seeds only,
-and ``Scores.tasks_recorded`` says so.
+A method's scores are a matrix ``[runs, tasks]``: one row per training seed, one column per held-out task, each
+cell that seed's mean over its episodes on that task (``per_task`` of an ``icprl evaluate`` JSON); an older JSON
+gives ``[seeds, 1]`` (``per_seed``), whose interval covers the training seeds only (``Scores.tasks_recorded``).
 
-* ``iqm`` — the interquartile mean of all runs × tasks (the mean of the middle 50%), rliable's
-  ``metrics.aggregate_iqm``.
-* ``interval`` — point estimate and percentile 95% interval of a statistic under the stratified bootstrap:
-  each replicate resamples the runs with replacement *within* every task (rliable's ``StratifiedBootstrap``)
-  and, with ``tasks=True``, the tasks as well (rliable's ``task_bootstrap``), so the interval covers both
-  the training seeds and the held-out tasks drawn.
-* ``difference`` — ``statistic(A) − statistic(B)`` with both bootstrapped on the same resampled tasks
-  (paired over tasks, independent over runs), the interval a verdict reads: a claim "A beats B" holds only
-  where it excludes 0.
-* ``probability_of_improvement`` — P(X > Y): per task, the share of (run of A, run of B) pairs where A scores
-  higher (ties count ½: the Mann–Whitney U statistic over n·m), averaged over tasks; rliable's
-  ``metrics.probability_of_improvement``, with the same bootstrap interval.
-* ``performance_profile`` — the fraction of runs × tasks scoring above each threshold τ (rliable's score
-  distribution), with its bootstrap band.
+* ``iqm``: the interquartile mean of all runs × tasks (rliable's ``metrics.aggregate_iqm``).
+* ``interval``: point and percentile 95% interval under the stratified bootstrap: runs resampled *within* every
+  task (rliable's ``StratifiedBootstrap``) and, with ``tasks=True``, the tasks too (``task_bootstrap``).
+* ``difference``: ``statistic(A) − statistic(B)`` on the same resampled tasks (paired over tasks, independent
+  over runs): "A beats B" holds only where the interval excludes 0.
+* ``probability_of_improvement``: P(X > Y) per task over (run of A, run of B) pairs, ties ½ (Mann–Whitney U
+  over n·m), averaged over tasks (rliable's ``metrics.probability_of_improvement``), with the same interval.
+* ``performance_profile``: the fraction of runs × tasks above each threshold τ, with its bootstrap band.
 
-The bootstrap is ours, vectorized over replicates with numpy: rliable's own (``library.get_interval_estimates``,
-built on ``arch``) loops in Python per replicate and per task, which takes minutes per cell for the 200 bandit
-problems, where this takes milliseconds. Its point estimates are rliable's functions, and a test checks the
-intervals against rliable's on a small case.
+The bootstrap is ours, vectorized over replicates with numpy: rliable's (``get_interval_estimates``, on ``arch``)
+loops in Python per replicate and task, minutes per cell for the 200 bandit problems where this takes
+milliseconds. Point estimates are rliable's functions; a test checks the intervals against rliable's.
 """
 
 from __future__ import annotations
@@ -139,10 +130,6 @@ def interval(scores: Scores, statistic: str = "iqm", reps: int = REPS, seed: int
     return Estimate(point, *_percentiles(STATISTICS[statistic](samples)))
 
 
-def _same_tasks(a: Scores, b: Scores) -> bool:
-    return a.tasks == b.tasks
-
-
 def difference(a: Scores, b: Scores, statistic: str = "mean", reps: int = REPS, seed: int = 0) -> Estimate:
     """``statistic(a) − statistic(b)``; with the same tasks both are resampled on the same tasks (paired)."""
     stat = STATISTICS[statistic]
@@ -150,9 +137,8 @@ def difference(a: Scores, b: Scores, statistic: str = "mean", reps: int = REPS, 
     if a.values.size == 1 and b.values.size == 1:
         return Estimate(point, point, point)
     rng = np.random.default_rng(seed)
-    if _same_tasks(a, b):
-        shared = _tasks(rng, reps, a.tasks, True)
-        index_a = index_b = shared
+    if a.tasks == b.tasks:
+        index_a = index_b = _tasks(rng, reps, a.tasks, True)
     else:
         index_a, index_b = _tasks(rng, reps, a.tasks, True), _tasks(rng, reps, b.tasks, True)
     replicates = stat(_resample(a.values, rng, reps, index_a)) - stat(_resample(b.values, rng, reps, index_b))
@@ -172,7 +158,7 @@ def probability_of_improvement(a: Scores, b: Scores, higher_is_better: bool = Tr
 
     ``higher_is_better=False`` (regret) compares the negated scores. Needs the same tasks in both.
     """
-    if not _same_tasks(a, b):
+    if a.tasks != b.tasks:
         raise ValueError(f"probability of improvement needs the same tasks: {a.tasks} vs {b.tasks}")
     sign = 1.0 if higher_is_better else -1.0
     x, y = sign * a.values, sign * b.values

@@ -21,13 +21,10 @@ def slug(name: str) -> str:
 
 @dataclass(frozen=True)
 class Run:
-    """One method of a table: its configs (stacked, as repeated ``--config``) and command-line overrides.
-
-    A later stage of a pipeline (ICRG after RewardGen) names its earlier stages in ``needs``: each
-    ``(flag, runs)`` passes the checkpoints of the same training seed of ``runs`` as ``flag``'s value (one path,
-    or a list when ``runs`` has several). Such a run is trained after the runs it needs, and again whenever
-    one of them is.
-    """
+    """One method of a table: its configs (stacked, as repeated ``--config``) and command-line overrides. A later
+    pipeline stage (ICRG after RewardGen) names its earlier ones in ``needs``: each ``(flag, runs)`` passes the
+    same training seed's checkpoints of ``runs`` as ``flag`` (a list when several); it is trained after them, and
+    again whenever one of them is."""
 
     name: str  # a table row; no '=' or ',' (``icprl evaluate --run NAME=CONFIG:CKPT,CKPT``)
     configs: tuple[str, ...]
@@ -69,15 +66,11 @@ class Evaluation:
 
 @dataclass(frozen=True)
 class OnlineEvaluation:
-    """One online deployment of a table's runs, written to ``<table><suffix>``: from an empty context the agent
-    asks for a comparison as it acts (``episodes`` querying episodes of an MDP family, at ``quality``'s held-out
-    tasks, or ``rounds`` duels of a bandit on its first ``problems`` held-out problems), proposing each pair by a
-    rule of ``rules`` (``online.PAIR_RULES``); the dataset's annotator answers, its answers inverted or replaced
-    by coins with ``labels`` (the online label diagnostic). ``None``: the online evaluation's default.
-
-    An AD run on duels (its config's model ``ADModule``) plays as the ``ad`` row: ``data`` names the config whose
-    dueling-bandit data it is deployed on (its own data are learning histories) and ``beside`` the ICPO checkpoints
-    (or shipped model names) asked online beside it."""
+    """One online deployment of a table's runs (``icprl evaluate online``), written to ``<table><suffix>``: from an
+    empty context, ``episodes`` of an MDP family at ``quality``'s held-out tasks or ``rounds`` duels on the first
+    ``problems`` bandit problems, each pair by a rule of ``rules``, answers per ``labels``; ``None``: the default.
+    An AD run on duels plays as the ``ad`` row: ``data`` names the config of the bandit data it is deployed on
+    (its own are learning histories), ``beside`` the ICPO checkpoints (or shipped model names) asked beside it."""
 
     suffix: str
     rules: tuple[str, ...] = ("action_uniform",)
