@@ -90,7 +90,9 @@ _BUILTIN_METHODS = ("icprl_lightning.methods.dpt.DPTModule", "icprl_lightning.me
 METHODS = Registry("method", "icprl_lightning.methods", {name: name for name in _BUILTIN_METHODS}, class_path,
                    ("make_agent", "on_save_checkpoint"),
                    "subclass icprl_lightning.methods.base.InContextModule; docs/extending_methods.md")
-EVALUATIONS = Registry("evaluation", "icprl_lightning.evaluations", {}, lambda cls: cls.name,
+EVALUATIONS = Registry("evaluation", "icprl_lightning.evaluations",
+                       {"comparison_budget": "icprl_lightning.evaluation.comparison_budget.ComparisonBudget"},
+                       lambda cls: cls.name,
                        ("name", "run", "markdown"),
                        "subclass icprl_lightning.evaluation.base.HeldOutEvaluation; docs/extending_evaluations.md")
 
