@@ -136,8 +136,9 @@ class ComparisonBudget(HeldOutEvaluation):
                             deployed = replace(suite, context=asker.context)
                         else:
                             deployed = suite if labels == "own" else diagnose_suite(suite, f"{labels}_labels", seed)
-                        played[name].append([suite.normalize(rollout_in_context(
-                            PrefixAgent(agent(seed), k), deployed, seed, env, progress=False)["return"]) for k in budgets])
+                        returns = [rollout_in_context(PrefixAgent(agent(seed), k), deployed, seed, env,
+                                                      progress=False)["return"] for k in budgets]
+                        played[name].append([suite.normalize(r) for r in returns])
                 tasks = np.tile(suite.task_index, len(seeds))
                 for name, per_seed in played.items():  # [seeds][budgets] -> per budget, the per-task means
                     for j, column in enumerate(zip(*per_seed, strict=True)):
