@@ -1,5 +1,5 @@
-"""How many answered comparisons an I-PRL agent needs on held-out tasks (issue 57, point 4): a study to plan a
-labelling session by.
+"""How many answered comparisons an I-PRL agent needs on held-out tasks: a study to plan a labelling session by
+(``docs/labelling.md``).
 
 For every comparison budget k (``budgets``: by default 0, 10%, ..., 100% of the model's ``max_context``), the
 agent's normalized return (``EvalSuite.normalize``; DarkRoom: return / optimal return) with the first k answered
