@@ -95,7 +95,8 @@ _BUILTIN_EVALUATIONS = {"rollouts": "icprl_lightning.evaluation.heldout_rollouts
                         "pair_accuracy": "icprl_lightning.evaluation.pair_accuracy.PairAccuracy",
                         "online": "icprl_lightning.evaluation.online_mdp.OnlineMDP",
                         "online_duels": "icprl_lightning.evaluation.online_bandit.OnlineBandit",
-                        "ad": "icprl_lightning.evaluation.ad_command.ADEpisodes"}
+                        "ad": "icprl_lightning.evaluation.ad_command.ADEpisodes",
+                        "comparison_budget": "icprl_lightning.evaluation.comparison_budget.ComparisonBudget"}
 EVALUATIONS = Registry("evaluation", "icprl_lightning.evaluations", _BUILTIN_EVALUATIONS, lambda cls: cls.name,
                        ("name", "run", "markdown"),
                        "subclass icprl_lightning.evaluation.base.HeldOutEvaluation; docs/extending_evaluations.md")

@@ -414,14 +414,15 @@ def test_a_table_of_another_tables_runs_shares_its_fits_and_evaluates_online_thr
 
 def test_the_tables_that_borrow_runs_deploy_the_runs_their_results_came_from(tables):
     """Each table with ``runs_from`` deploys the very run (same fit command) of the table it names, and writes the
-    files docs/results holds for it: the online tables, and the Reach held-out table (the paper's goals, fresh ones)."""
+    files docs/results holds for it: the online tables, the Reach held-out table (the paper's goals, fresh ones) and
+    the labelling page's comparison-budget studies (a registered evaluation)."""
     borrowing = {name: table for name, table in tables.items() if table.runs_from}
-    assert set(borrowing) == {"online_bandit", "online_darkroom_uniform", "online_darkroom_uniform_next",
-                              "online_darkroom_paper", "metaworld_heldout"}
+    online = {"online_bandit", "online_darkroom_uniform", "online_darkroom_uniform_next", "online_darkroom_paper"}
+    assert set(borrowing) == online | {"metaworld_heldout", "labelling_budget", "labelling_budget_uniform"}
     for table in borrowing.values():
         source = {run.name: run for run in tables[table.runs_from].runs}
         assert all(run == source[run.name] for run in table.runs)
-        assert all(isinstance(e, OnlineEvaluation) for e in table.evaluations) != (table.name == "metaworld_heldout")
+        assert all(isinstance(e, OnlineEvaluation) for e in table.evaluations) == (table.name in online)
         for evaluation in table.evaluations:
             assert (REPO / "docs/results" / table.name / f"{table.name}{evaluation.suffix}.json").exists(), evaluation
 
