@@ -121,7 +121,7 @@ def over_training_seeds(per_seed: list[dict[str, Any]]) -> dict[str, Any]:
     """One row from each training seed's held-out means: mean ± sem over seeds, and the seeds' values.
 
     With a single seed the row is that seed's (its ± is the sem over held-out tasks). A seed row's
-    ``per_task`` (metric -> per-task values) becomes the row's ``per_task``: metric -> [seed][task], the
+    ``per_task`` (metric -> per-task values) becomes the row's ``per_task``: metric -> seeds × tasks values, the
     seeds × tasks matrix that ``reproduce.statistics`` bootstraps.
     """
     from icprl_lightning.metrics import mean_sem
