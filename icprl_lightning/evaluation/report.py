@@ -18,7 +18,6 @@ matplotlib backend of the caller.
 
 from __future__ import annotations
 
-import json
 import textwrap
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,7 @@ from rich.console import Console
 from rich.measure import Measurement
 from rich.table import Table
 
-from icprl_lightning.io import save_figure, write_atomic
+from icprl_lightning.io import save_figure
 from icprl_lightning.untrusted import UntrustedFileError, read_json
 
 MDP_METRICS = ("return", "normalized_return", "success")
@@ -369,24 +368,9 @@ def aligned_tables(markdown: str) -> str:
     return "\n".join(out) + "\n"
 
 
-def markdown_tables(payload: dict[str, Any]) -> str:
-    """The tables of ``<out>.md``: weak regret (bandits, with ``curves``) or held-out returns (MDP families)."""
-    return regret_markdown(payload) if "curves" in payload else rollout_markdown(payload)
-
-
-def write_outputs(payload: dict[str, Any], out: str | Path) -> None:
-    """``<out>.json`` (all numbers), ``<out>.md`` (the tables), ``<out>.png`` (the figure) and, with context
-    diagnostics, ``<out>_diagnostics.png``."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_atomic(out.with_suffix(".json"), json.dumps(payload, indent=2))
-    write_atomic(out.with_suffix(".md"), markdown_tables(payload))
-    write_figures(payload, out)
-
-
 def write_figures(payload: dict[str, Any], out: str | Path) -> None:
-    """The figures of ``write_outputs`` alone: ``<out>.png`` and, with context diagnostics, ``<out>_diagnostics.png``
-    (``icprl reproduce TABLE --redraw`` redraws them from the JSON after a change to the figure code)."""
+    """The figures of the rollouts and duels kinds: ``<out>.png`` and, with context diagnostics,
+    ``<out>_diagnostics.png`` (``icprl reproduce TABLE --redraw`` redraws them from the JSON)."""
     out = Path(out)
     bandit = "curves" in payload
     (regret_figure if bandit else rollout_figure)(payload, out.with_suffix(".png"))

@@ -17,7 +17,7 @@ from factories import save_untrained
 from icprl_lightning.commands.report import main as report_main
 from icprl_lightning.data.importer import import_preferences
 from icprl_lightning.data.interop import export_dataset
-from icprl_lightning.evaluation.report import write_outputs
+from icprl_lightning.evaluation.heldout_rollouts import HeldOutRollouts
 from icprl_lightning.hub import export_model
 from icprl_lightning.io import NotReplaceableError, save_figure, write_atomic, write_json_atomic
 from icprl_lightning.methods.icpo import ICPOModule
@@ -41,9 +41,9 @@ def _report_default(tmp: Path) -> None:
 
 def _evaluate_outputs(tmp: Path) -> None:
     stats = {"return": 10.0, "return_sem": 1.0}
-    write_outputs({"title": "t", "runs": ["ICPO=/r/config.yaml:/r/last.ckpt"], "seeds": [0], "actions": "greedy",
-                   "reference_rows_from": "ICPO", "results": {"ICPO": {"low": stats, "high": stats}}},
-                  tmp / "run" / "curves")
+    payload = {"title": "t", "runs": ["ICPO=/r/config.yaml:/r/last.ckpt"], "seeds": [0], "actions": "greedy",
+               "reference_rows_from": "ICPO", "results": {"ICPO": {"low": stats, "high": stats}}}
+    HeldOutRollouts.write(payload, tmp / "run" / "curves")
 
 
 def _figure(tmp: Path) -> None:
